@@ -1,0 +1,262 @@
+"""Vehicle parameter sets: YAML data files, validated on load, exposed as frozen dataclasses.
+
+A set describes the whole car: rigid-body data at the CG, geometry, suspension, tires (Magic Formula
+shape per axle), drivetrain and steering. Observers read the bicycle-model view of the same set
+(``mass_kg``, ``yaw_inertia_kgm2``, ``lf_m``, ``lr_m``, ``cornering_stiffness_f_Npr`` …), so
+the truth model and the observers are built from one source.
+
+Tire slope. With ``D = mu * Fz`` the Magic Formula's initial slope is ``B * C * D``; summed over an
+axle at static load and mu = 1 it is the axle cornering stiffness
+``C_alpha = B * C * Fz_axle``. A file may give ``By`` directly or ``cornering_stiffness_Npr``, from
+which ``By = C_alpha / (Cy * Fz_axle_static)`` is derived (the file says which).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from importlib.resources import files
+from pathlib import Path
+from typing import Any
+
+from harness.errors import VehicleError
+from harness.strict_yaml import Fields, load_mapping
+
+G = 9.81  # m/s^2
+DRIVE_LAYOUTS = ("rwd", "fwd", "awd")
+
+
+@dataclass(frozen=True)
+class AxleTire:
+    """Magic Formula shape of one axle's tires (pure slip). B [1/rad or 1], C, E [1]."""
+
+    By: float
+    Cy: float
+    Ey: float
+    Bx: float
+    Cx: float
+    Ex: float
+    stiffness_source: str  # "B given" or "B derived from cornering_stiffness_Npr"
+
+
+@dataclass(frozen=True)
+class Tires:
+    front: AxleTire
+    rear: AxleTire
+    radial_stiffness_Npm: float  # vertical tire spring per wheel
+    radial_damping_Nspm: float
+    relaxation_length_m: float  # first-order lag of slip, time constant sigma/|vx|
+    load_sensitivity: float  # peak mu falls by this fraction per 100 % load above static
+
+
+@dataclass(frozen=True)
+class Suspension:
+    stiffness_f_Npm: float  # per corner, at the wheel
+    stiffness_r_Npm: float
+    damping_f_Nspm: float
+    damping_r_Nspm: float
+    arb_f_Npm: float  # anti-roll bar, on the left-right travel difference
+    arb_r_Npm: float
+    travel_m: float  # bump stop at +-travel
+
+
+@dataclass(frozen=True)
+class Drivetrain:
+    layout: str  # rwd | fwd | awd
+    max_drive_torque_Nm: float  # total at the wheels
+    max_brake_torque_Nm: float  # per wheel
+    brake_bias_front: float  # fraction of brake torque on the front axle
+
+
+@dataclass(frozen=True)
+class Steering:
+    ratio: float  # handwheel angle / road-wheel angle
+    max_road_wheel_angle_rad: float
+    ackermann: float  # 0 = parallel steer, 1 = full Ackermann
+
+
+@dataclass(frozen=True)
+class VehicleParams:
+    """One vehicle parameter set (SI units). Masses/inertias are for the whole car at its CG."""
+
+    name: str
+    description: str
+    source: str
+    mass_kg: float
+    yaw_inertia_kgm2: float
+    roll_inertia_kgm2: float
+    pitch_inertia_kgm2: float
+    lf_m: float
+    lr_m: float
+    track_f_m: float
+    track_r_m: float
+    h_cg_m: float
+    wheel_radius_m: float
+    unsprung_mass_kg: float  # per corner (upright + wheel)
+    wheel_spin_inertia_kgm2: float
+    suspension: Suspension
+    tires: Tires
+    drivetrain: Drivetrain
+    steering: Steering
+    path: str = ""
+
+    # ---- bicycle-model view --------------------------------------------------------------
+    @property
+    def wheelbase_m(self) -> float:
+        return self.lf_m + self.lr_m
+
+    @property
+    def fz_front_static_N(self) -> float:
+        """Static front axle load [N]."""
+        return self.mass_kg * G * self.lr_m / self.wheelbase_m
+
+    @property
+    def fz_rear_static_N(self) -> float:
+        return self.mass_kg * G * self.lf_m / self.wheelbase_m
+
+    @property
+    def cornering_stiffness_f_Npr(self) -> float:
+        """Front axle cornering stiffness at static load and mu = 1 [N/rad] (= By*Cy*Fz_f)."""
+        return self.tires.front.By * self.tires.front.Cy * self.fz_front_static_N
+
+    @property
+    def cornering_stiffness_r_Npr(self) -> float:
+        return self.tires.rear.By * self.tires.rear.Cy * self.fz_rear_static_N
+
+    @property
+    def understeer_gradient_radpmps2(self) -> float:
+        """K = m/L (lr/Cf - lf/Cr) [rad/(m/s^2)]; > 0 understeer."""
+        m, L = self.mass_kg, self.wheelbase_m
+        return m / L * (self.lr_m / self.cornering_stiffness_f_Npr - self.lf_m / self.cornering_stiffness_r_Npr)
+
+    def steady_yaw_rate(self, vx_mps: float, delta_rad: float) -> float:
+        """Linear bicycle steady-state yaw rate r = v*delta / (L + K v^2) [rad/s]."""
+        return vx_mps * delta_rad / (self.wheelbase_m + self.understeer_gradient_radpmps2 * vx_mps**2)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d.pop("path", None)
+        d["derived"] = {
+            "wheelbase_m": self.wheelbase_m,
+            "fz_front_static_N": self.fz_front_static_N,
+            "fz_rear_static_N": self.fz_rear_static_N,
+            "cornering_stiffness_f_Npr": self.cornering_stiffness_f_Npr,
+            "cornering_stiffness_r_Npr": self.cornering_stiffness_r_Npr,
+            "understeer_gradient_radpmps2": self.understeer_gradient_radpmps2,
+        }
+        return d
+
+    def with_overrides(self, **changes: Any) -> VehicleParams:
+        return dataclasses.replace(self, **changes)
+
+
+# ---- loading ---------------------------------------------------------------------------------
+
+def _axle_tire(f: Fields, fz_axle: float) -> AxleTire:
+    cy = f.number("Cy", lo=0.5, hi=3.0)
+    if f.has("By") and f.has("cornering_stiffness_Npr"):
+        raise f.fail("By", "give either By or cornering_stiffness_Npr, not both")
+    if f.has("cornering_stiffness_Npr"):
+        c_alpha = f.number("cornering_stiffness_Npr", lo=1e3, hi=1e6)
+        by, src = c_alpha / (cy * fz_axle), "B derived from cornering_stiffness_Npr"
+    else:
+        by, src = f.number("By", lo=1.0, hi=40.0), "B given"
+    t = AxleTire(By=by, Cy=cy, Ey=f.number("Ey", lo=-10.0, hi=1.0), Bx=f.number("Bx", lo=1.0, hi=60.0),
+                 Cx=f.number("Cx", lo=0.5, hi=3.0), Ex=f.number("Ex", lo=-10.0, hi=1.0), stiffness_source=src)
+    f.done()
+    return t
+
+
+def parse_vehicle(data: dict[str, Any], source: str) -> VehicleParams:
+    """Validate a vehicle mapping (as read from YAML) and build ``VehicleParams``."""
+    f = Fields(data, source=source, error=VehicleError)
+    name = f.string("name")
+    mass = f.number("mass_kg", lo=50.0, hi=40000.0)
+    lf = f.number("lf_m", lo=0.1, hi=5.0)
+    lr = f.number("lr_m", lo=0.1, hi=5.0)
+    L = lf + lr
+    s = f.sub("suspension")
+    susp = Suspension(
+        stiffness_f_Npm=s.number("stiffness_f_Npm", lo=1e3, hi=1e6),
+        stiffness_r_Npm=s.number("stiffness_r_Npm", lo=1e3, hi=1e6),
+        damping_f_Nspm=s.number("damping_f_Nspm", lo=0.0, hi=1e5),
+        damping_r_Nspm=s.number("damping_r_Nspm", lo=0.0, hi=1e5),
+        arb_f_Npm=s.number("arb_f_Npm", 0.0, lo=0.0, hi=1e6),
+        arb_r_Npm=s.number("arb_r_Npm", 0.0, lo=0.0, hi=1e6),
+        travel_m=s.number("travel_m", 0.12, lo=0.01, hi=0.5),
+    )
+    s.done()
+    t = f.sub("tires")
+    tires = Tires(
+        front=_axle_tire(t.sub("front"), mass * G * lr / L),
+        rear=_axle_tire(t.sub("rear"), mass * G * lf / L),
+        radial_stiffness_Npm=t.number("radial_stiffness_Npm", lo=1e4, hi=5e6),
+        radial_damping_Nspm=t.number("radial_damping_Nspm", 300.0, lo=0.0, hi=1e5),
+        relaxation_length_m=t.number("relaxation_length_m", 0.3, lo=0.0, hi=3.0),
+        load_sensitivity=t.number("load_sensitivity", 0.0, lo=0.0, hi=0.5),
+    )
+    t.done()
+    d = f.sub("drivetrain")
+    drive = Drivetrain(
+        layout=d.string("layout", choices=DRIVE_LAYOUTS),
+        max_drive_torque_Nm=d.number("max_drive_torque_Nm", lo=1.0, hi=1e5),
+        max_brake_torque_Nm=d.number("max_brake_torque_Nm", lo=1.0, hi=1e5),
+        brake_bias_front=d.number("brake_bias_front", 0.6, lo=0.0, hi=1.0),
+    )
+    d.done()
+    st = f.sub("steering")
+    steer = Steering(
+        ratio=st.number("ratio", lo=1.0, hi=40.0),
+        max_road_wheel_angle_rad=st.number("max_road_wheel_angle_rad", 0.6, lo=0.05, hi=1.2),
+        ackermann=st.number("ackermann", 1.0, lo=0.0, hi=1.0),
+    )
+    st.done()
+    v = VehicleParams(
+        name=name,
+        description=f.string("description", ""),
+        source=f.string("source", ""),
+        mass_kg=mass,
+        yaw_inertia_kgm2=f.number("yaw_inertia_kgm2", lo=10.0, hi=1e6),
+        roll_inertia_kgm2=f.number("roll_inertia_kgm2", lo=1.0, hi=1e6),
+        pitch_inertia_kgm2=f.number("pitch_inertia_kgm2", lo=1.0, hi=1e6),
+        lf_m=lf,
+        lr_m=lr,
+        track_f_m=f.number("track_f_m", lo=0.3, hi=4.0),
+        track_r_m=f.number("track_r_m", lo=0.3, hi=4.0),
+        h_cg_m=f.number("h_cg_m", lo=0.1, hi=3.0),
+        wheel_radius_m=f.number("wheel_radius_m", lo=0.1, hi=1.5),
+        unsprung_mass_kg=f.number("unsprung_mass_kg", lo=1.0, hi=1000.0),
+        wheel_spin_inertia_kgm2=f.number("wheel_spin_inertia_kgm2", lo=0.01, hi=100.0),
+        suspension=susp,
+        tires=tires,
+        drivetrain=drive,
+        steering=steer,
+        path=source,
+    )
+    f.done()
+    if 4 * v.unsprung_mass_kg >= 0.5 * v.mass_kg:
+        raise VehicleError(f"unsprung mass 4x{v.unsprung_mass_kg:g} kg is not below half the total mass",
+                           source=source, field="unsprung_mass_kg")
+    if v.h_cg_m <= v.wheel_radius_m * 0.5:
+        raise VehicleError(f"CG height {v.h_cg_m:g} m is below half the wheel radius", source=source,
+                           field="h_cg_m")
+    return v
+
+
+def vehicles_dir() -> Path:
+    return Path(str(files("harness") / "vehicles"))
+
+
+def available_vehicles() -> list[str]:
+    """Names of the shipped vehicle sets (file stems of ``harness/vehicles/*.yaml``)."""
+    return sorted(p.stem for p in vehicles_dir().glob("*.yaml"))
+
+
+def load_vehicle(name_or_path: str | Path) -> VehicleParams:
+    """Load a shipped set by name (``"sedan"``) or any YAML file by path."""
+    p = Path(name_or_path)
+    if p.suffix.lower() not in (".yaml", ".yml"):
+        p = vehicles_dir() / f"{name_or_path}.yaml"
+        if not p.is_file():
+            raise VehicleError(f"unknown vehicle {str(name_or_path)!r} (available: {', '.join(available_vehicles())})")
+    return parse_vehicle(load_mapping(p, VehicleError), str(p))
