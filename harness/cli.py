@@ -1,0 +1,239 @@
+"""The ``roadtruth`` command line: parsing only; every command calls one library function.
+
+Exit codes: 0 success, 1 a check failed, 2 bad input (one line on stderr naming the file, field or
+value at fault; nothing written). Heavy packages (mujoco, numba, cvxpy) are imported inside the
+command functions so that ``--help`` stays instant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import NoReturn
+
+from harness import __version__
+from harness.errors import CheckFailed, InputError
+
+EXIT_OK, EXIT_CHECK_FAILED, EXIT_BAD_INPUT = 0, 1, 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage mistake is one line on stderr and exit 2 (like every bad input)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def _csv_list(text: str) -> list[str]:
+    items = [s.strip() for s in text.split(",") if s.strip()]
+    if not items:
+        raise argparse.ArgumentTypeError(f"empty list {text!r}")
+    return items
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1 (got {v})")
+    return v
+
+
+def _seed(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0 (got {v})")
+    return v
+
+
+def _rate(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (0.0 < v <= 100000.0):
+        raise argparse.ArgumentTypeError(f"must be in (0, 100000] Hz (got {text})")
+    return v
+
+
+# ---- commands -----------------------------------------------------------------------------------
+
+def _cmd_run(a: argparse.Namespace) -> int:
+    from harness.pipeline import run_suite
+
+    out = run_suite(scenarios=a.scenario, suite_name=a.suite, observers=a.observer, seed=a.seed,
+                    jobs=a.jobs, out=Path(a.out), vehicle=a.vehicle, friction=a.friction,
+                    sensors=a.sensors, faults=a.faults, log_rate_hz=a.log_rate, render=not a.no_render,
+                    progress=None)
+    print(f"report: {out / 'index.html'}")
+    return EXIT_OK
+
+
+def _cmd_simulate(a: argparse.Namespace) -> int:
+    from harness.pipeline import simulate_to_dir
+
+    out = simulate_to_dir(a.scenario, Path(a.out or f"reports/simulate-{a.scenario}"), vehicle=a.vehicle,
+                          friction=a.friction, seed=a.seed, log_rate_hz=a.log_rate, sensors=a.sensors,
+                          faults=a.faults)
+    print(f"wrote {out}")
+    return EXIT_OK
+
+
+def _cmd_scenarios(a: argparse.Namespace) -> int:
+    from harness.scenario import scenario_summaries
+
+    rows = scenario_summaries()
+    if a.json:
+        print(json.dumps(rows, indent=2))
+        return EXIT_OK
+    width = max(len(r["name"]) for r in rows)
+    for r in rows:
+        tags = ",".join(r.get("tags", []))
+        print(f"{r['name']:<{width}}  {r.get('description', '')}  [{tags}]")
+    return EXIT_OK
+
+
+def _cmd_observers(a: argparse.Namespace) -> int:
+    from observers.registry import observer_info
+
+    rows = observer_info()
+    if a.json:
+        print(json.dumps(rows, indent=2, default=str))
+        return EXIT_OK
+    width = max(len(r["name"]) for r in rows)
+    for r in rows:
+        states = ",".join(r.get("states", []))
+        print(f"{r['name']:<{width}}  states: {states}  ({r.get('citation', '')})")
+    return EXIT_OK
+
+
+def _cmd_vehicles(a: argparse.Namespace) -> int:
+    from harness.vehicle import available_vehicles, load_vehicle
+
+    sets = [load_vehicle(n) for n in available_vehicles()]
+    if a.json:
+        print(json.dumps([v.to_dict() for v in sets], indent=2))
+        return EXIT_OK
+    print(f"{'name':<15} {'mass kg':>8} {'Iz kg m2':>9} {'lf m':>6} {'lr m':>6} {'Cf kN/rad':>10} "
+          f"{'Cr kN/rad':>10} {'K mrad/(m/s2)':>14}  drive")
+    for v in sets:
+        print(f"{v.name:<15} {v.mass_kg:>8.0f} {v.yaw_inertia_kgm2:>9.0f} {v.lf_m:>6.3f} {v.lr_m:>6.3f} "
+              f"{v.cornering_stiffness_f_Npr / 1e3:>10.1f} {v.cornering_stiffness_r_Npr / 1e3:>10.1f} "
+              f"{v.understeer_gradient_radpmps2 * 1e3:>14.2f}  {v.drivetrain.layout}")
+    return EXIT_OK
+
+
+def _cmd_report(a: argparse.Namespace) -> int:
+    from harness.report import build_report
+
+    path = build_report(Path(a.dir))
+    print(f"report: {path}")
+    return EXIT_OK
+
+
+def _cmd_compare(a: argparse.Namespace) -> int:
+    from harness.compare import compare_runs
+
+    table = compare_runs(Path(a.dir_a), Path(a.dir_b), Path(a.out) if a.out else None)
+    with_delta = table.dropna(subset=["rmse_delta"]) if "rmse_delta" in table else table
+    print(with_delta.to_string(index=False, max_rows=60))
+    return EXIT_OK
+
+
+def _cmd_replay(a: argparse.Namespace) -> int:
+    from harness.replay import replay
+
+    out = replay(Path(a.log), vehicle=a.vehicle, columns=a.columns, observers=a.observer, out=Path(a.out))
+    print(f"report: {out / 'index.html'}")
+    return EXIT_OK
+
+
+# ---- parser ---------------------------------------------------------------------------------------
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="roadtruth", description="Validate vehicle state observers against MuJoCo ground truth "
+                "and recorded logs.")
+    p.add_argument("--version", action="version", version=f"roadtruth {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+
+    def common_sim(sp: argparse.ArgumentParser) -> None:
+        sp.add_argument("--vehicle", help="vehicle set name or YAML path (default: the scenario's)")
+        sp.add_argument("--friction", help="override road friction: a number (uniform mu), a surface "
+                        "(dry, wet, snow, ice) or a friction YAML")
+        sp.add_argument("--seed", type=_seed, help="seed for everything random (default: the scenario's)")
+        sp.add_argument("--sensors", help="sensor preset (ideal, automotive, consumer) or YAML")
+        sp.add_argument("--faults", help="sensor faults, e.g. 'gnss:dropout=0.2' (see docs/SENSORS.md)")
+
+    r = sub.add_parser("run", help="the main job: simulate, sense, estimate, score, report")
+    r.add_argument("--suite", default="default", help="scenario suite (tag): default, ci, stress")
+    r.add_argument("--scenario", type=_csv_list, help="comma-separated scenarios (overrides --suite)")
+    r.add_argument("--observer", type=_csv_list, help="comma-separated observers (default: all)")
+    r.add_argument("--jobs", type=_positive_int, default=1, help="parallel processes")
+    r.add_argument("--out", default="reports/latest", help="output folder (default reports/latest)")
+    r.add_argument("--log-rate", type=_rate, default=100.0, help="truth.csv rate in Hz (default 100)")
+    r.add_argument("--no-render", action="store_true", help="skip MuJoCo frames and videos")
+    common_sim(r)
+    r.set_defaults(func=_cmd_run)
+
+    s = sub.add_parser("simulate", help="ground truth and measurements only")
+    s.add_argument("scenario", help="scenario name or YAML path")
+    s.add_argument("--out", help="output folder (default reports/simulate-SCENARIO)")
+    s.add_argument("--log-rate", type=_rate, default=1000.0, help="truth.csv rate in Hz (default 1000)")
+    common_sim(s)
+    s.set_defaults(func=_cmd_simulate)
+
+    for name, func, what in (("scenarios", _cmd_scenarios, "list scenarios"),
+                             ("observers", _cmd_observers, "list observers"),
+                             ("vehicles", _cmd_vehicles, "list vehicle parameter sets")):
+        sp = sub.add_parser(name, help=what)
+        sp.add_argument("--json", action="store_true", help="machine-readable output")
+        sp.set_defaults(func=func)
+
+    rp = sub.add_parser("report", help="rebuild DIR/index.html from saved results")
+    rp.add_argument("dir")
+    rp.set_defaults(func=_cmd_report)
+
+    c = sub.add_parser("compare", help="per-observer metric deltas between two runs")
+    c.add_argument("dir_a")
+    c.add_argument("dir_b")
+    c.add_argument("--out", help="write compare.csv and compare.html here")
+    c.set_defaults(func=_cmd_compare)
+
+    rl = sub.add_parser("replay", help="run observers on a recorded log and score them")
+    rl.add_argument("log", help="CSV, CSV.gz, Parquet or .mat log")
+    rl.add_argument("--vehicle", default="ferrari_250lm", help="vehicle set name or YAML path")
+    rl.add_argument("--columns", help="column map YAML (log names/units -> canonical signals)")
+    rl.add_argument("--observer", type=_csv_list, help="comma-separated observers (default: all)")
+    rl.add_argument("--out", default="reports/replay", help="output folder (default reports/replay)")
+    rl.set_defaults(func=_cmd_replay)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except InputError as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        print(f"roadtruth: error: {msg}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except CheckFailed as exc:
+        print(f"roadtruth: check failed: {exc}", file=sys.stderr)
+        return EXIT_CHECK_FAILED
+    except KeyboardInterrupt:
+        print("roadtruth: interrupted (nothing half-written was kept)", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
