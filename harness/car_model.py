@@ -1,0 +1,343 @@
+"""MJCF of the car, generated from a ``VehicleParams`` (+ optional scenario visuals).
+
+Layout (shared/notes/mujoco-car-and-tires.md, section 4.1)::
+
+    chassis  <freejoint>, inertial at the CG, collision box with the floor only
+      upright_XX  slide joint susp_XX (z up, q > 0 = bump), spring/damper, bump stops = range
+        [front] knuckle_XX  hinge steer_XX (z), position servo
+          wheel_XX  hinge spin_XX (y), motor (drive + brake torque)
+
+Wheels have NO MuJoCo contact: the tire forces (normal load from a radial tire spring, Magic Formula
+Fx/Fy) are computed by ``harness.simulate`` each step and applied at the contact patch through
+``xfrc_applied``. Anti-roll bars are fixed tendons on the left-right travel difference.
+
+Mass bookkeeping: the set's ``mass_kg`` and ``*_inertia_kgm2`` are for the WHOLE car about its CG.
+The unsprung corners (upright, knuckle, wheel) are subtracted, so the chassis gets the remainder and
+its inertial frame is placed so that the whole car's CG sits at the chassis body origin at rest.
+The chassis body origin is therefore the car's (static) CG; its height at rest is ``h_cg_m``.
+The static equilibrium is built in: each suspension spring's ``springref`` carries its sprung load
+at q = 0, and the corners hang so that each tire spring is compressed by its static load.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from harness.errors import VehicleError
+from harness.vehicle import G, VehicleParams
+
+CORNERS: tuple[str, ...] = ("fl", "fr", "rl", "rr")
+#: Fractions of the unsprung corner mass in the upright, the steering knuckle and the wheel.
+UPRIGHT_SHARE, KNUCKLE_SHARE = 0.3, 0.1
+#: Steering servo stiffness [N m/rad] and the steering-axis armature [kg m^2].
+STEER_KP = 20000.0
+STEER_ARMATURE = 0.3
+#: Chassis collision box: ground clearance under the CG plane and body size margins [m].
+GROUND_CLEARANCE_M = 0.12
+FRONT_OVERHANG_M = 0.9
+REAR_OVERHANG_M = 0.9
+BODY_HEIGHT_M = 1.35
+TIRE_HALF_WIDTH_M = 0.11
+#: Lane marking dashes: length and period [m]; width [m].
+DASH_LENGTH_M, DASH_PERIOD_M, MARKING_WIDTH_M = 3.0, 12.0, 0.15
+MAX_DASHES = 4000
+PATCH_RGBA = {"ice": "0.70 0.85 1.0 0.85", "snow": "0.96 0.96 0.98 0.9", "wet": "0.25 0.30 0.40 0.8",
+              "dry": "0.45 0.45 0.42 0.6", "": "0.85 0.55 0.25 0.6"}
+
+
+@dataclass(frozen=True)
+class CornerGeometry:
+    """Where each corner sits (chassis frame, origin at the CG, at rest) and its static loads."""
+
+    position: np.ndarray  # (4, 3) wheel centres [m]
+    fz_static: np.ndarray  # (4,) static wheel loads [N]
+    tire_deflection: np.ndarray  # (4,) static tire compression [m]
+    spring_ref: np.ndarray  # (4,) suspension springref [m]
+
+
+def corner_geometry(v: VehicleParams) -> CornerGeometry:
+    """Wheel-centre positions, static loads, tire deflections and spring references of a set."""
+    L = v.wheelbase_m
+    fz_f = v.mass_kg * G * v.lr_m / L / 2.0
+    fz_r = v.mass_kg * G * v.lf_m / L / 2.0
+    fz = np.array([fz_f, fz_f, fz_r, fz_r])
+    defl = fz / v.tires.radial_stiffness_Npm
+    k = np.array([v.suspension.stiffness_f_Npm] * 2 + [v.suspension.stiffness_r_Npm] * 2)
+    x = np.array([v.lf_m, v.lf_m, -v.lr_m, -v.lr_m])
+    y = np.array([v.track_f_m, -v.track_f_m, v.track_r_m, -v.track_r_m]) / 2.0
+    z = v.wheel_radius_m - defl - v.h_cg_m
+    spring_ref = -(fz - v.unsprung_mass_kg * G) / k
+    return CornerGeometry(np.column_stack([x, y, z]), fz, defl, spring_ref)
+
+
+def _wheel_inertia(v: VehicleParams) -> tuple[float, float]:
+    """(spin, transverse) inertia of a wheel [kg m^2]; transverse ~ 0.6 spin, as for a disc+tyre."""
+    return v.wheel_spin_inertia_kgm2, 0.6 * v.wheel_spin_inertia_kgm2
+
+
+def chassis_inertial(v: VehicleParams) -> tuple[float, np.ndarray, np.ndarray]:
+    """Sprung mass [kg], its CG offset from the car CG (3,) [m] and its diagonal inertia (3,) [kg m^2].
+
+    Whole-car targets minus the corners (point masses plus their own inertia, parallel-axis terms
+    about the car CG) minus the chassis' own parallel-axis term. Raises ``VehicleError`` if the corners
+    leave too little. If the remainder breaks the triangle inequality I_x + I_y >= I_z (a set whose
+    whole-car roll + pitch inertia is below its yaw inertia), the chassis pitch inertia is raised to
+    1.01 I_z − I_x: yaw and roll stay exact, the whole car's pitch inertia is then larger than the set's.
+    """
+    g = corner_geometry(v)
+    mu = v.unsprung_mass_kg
+    ms = v.mass_kg - 4.0 * mu
+    offset = -mu * g.position.sum(axis=0) / ms
+    spin, trans = _wheel_inertia(v)
+    # Own inertia of a corner (upright + knuckle small boxes, wheel disc) about its centre.
+    own = np.array([trans, spin, trans]) + 0.02 * mu * np.ones(3)
+    p = g.position
+    corners = mu * np.array([np.sum(p[:, 1] ** 2 + p[:, 2] ** 2), np.sum(p[:, 0] ** 2 + p[:, 2] ** 2),
+                             np.sum(p[:, 0] ** 2 + p[:, 1] ** 2)]) + 4.0 * own
+    self_term = ms * np.array([offset[1] ** 2 + offset[2] ** 2, offset[0] ** 2 + offset[2] ** 2,
+                               offset[0] ** 2 + offset[1] ** 2])
+    target = np.array([v.roll_inertia_kgm2, v.pitch_inertia_kgm2, v.yaw_inertia_kgm2])
+    inertia = target - corners - self_term
+    if np.any(inertia <= 0.05 * target):
+        raise VehicleError(f"the unsprung corners leave no inertia for the chassis (roll/pitch/yaw "
+                           f"remainder {inertia.round(1).tolist()} kg m^2)", source=v.path or v.name,
+                           field="unsprung_mass_kg")
+    if inertia[0] + inertia[1] < 1.001 * inertia[2]:
+        # A rigid body needs I_x + I_y >= I_z. Some published sets give a yaw inertia that breaks it;
+        # yaw and roll are what the observers and the lateral dynamics use, so pitch gives way.
+        inertia[1] = 1.01 * inertia[2] - inertia[0]
+    return ms, offset, inertia
+
+
+def _f(x: float) -> str:
+    return f"{x:.9g}"
+
+
+def _vec(a: Any) -> str:
+    return " ".join(_f(float(x)) for x in a)
+
+
+def _corner_xml(v: VehicleParams, i: int, g: CornerGeometry) -> str:
+    name = CORNERS[i]
+    front = i < 2
+    mu = v.unsprung_mass_kg
+    s = v.suspension
+    k = s.stiffness_f_Npm if front else s.stiffness_r_Npm
+    c = s.damping_f_Nspm if front else s.damping_r_Nspm
+    spin, trans = _wheel_inertia(v)
+    R = v.wheel_radius_m
+    own = 0.02 * mu
+    m_up = mu * (UPRIGHT_SHARE + (0.0 if front else KNUCKLE_SHARE))
+    wheel = (f'<body name="wheel_{name}">'
+             f'<joint name="spin_{name}" type="hinge" axis="0 1 0" damping="0.05"/>'
+             f'<inertial pos="0 0 0" mass="{_f(mu * (1 - UPRIGHT_SHARE - KNUCKLE_SHARE))}" '
+             f'diaginertia="{_f(trans)} {_f(spin)} {_f(trans)}"/>'
+             f'<geom name="tire_{name}" type="cylinder" size="{_f(R)} {_f(TIRE_HALF_WIDTH_M)}" euler="1.5707963 0 0" '
+             f'contype="0" conaffinity="0" mass="0" material="tire"/>'
+             f'<geom name="rim_{name}" type="cylinder" size="{_f(0.6 * R)} {_f(TIRE_HALF_WIDTH_M + 0.005)}" '
+             f'euler="1.5707963 0 0" contype="0" conaffinity="0" mass="0" material="rim"/>'
+             f'<geom name="spoke_{name}" type="box" size="{_f(0.55 * R)} {_f(TIRE_HALF_WIDTH_M + 0.01)} 0.03" '
+             f'contype="0" conaffinity="0" mass="0" rgba="0.2 0.2 0.2 1"/>'
+             f'</body>')
+    if front:
+        wheel = (f'<body name="knuckle_{name}">'
+                 f'<joint name="steer_{name}" type="hinge" axis="0 0 1" range="-1.2 1.2" armature="{_f(STEER_ARMATURE)}" damping="5"/>'
+                 f'<inertial pos="0 0 0" mass="{_f(mu * KNUCKLE_SHARE)}" diaginertia="{_f(own * 0.25)} {_f(own * 0.25)} {_f(own * 0.25)}"/>'
+                 f'{wheel}</body>')
+    return (f'<body name="upright_{name}" pos="{_vec(g.position[i])}">'
+            f'<joint name="susp_{name}" type="slide" axis="0 0 1" range="{_f(-s.travel_m)} {_f(s.travel_m)}" '
+            f'stiffness="{_f(k)}" springref="{_f(g.spring_ref[i])}" damping="{_f(c)}" armature="1"/>'
+            f'<inertial pos="0 0 0" mass="{_f(m_up)}" diaginertia="{_f(own * (0.75 if front else 1.0))}'
+            f' {_f(own * (0.75 if front else 1.0))} {_f(own * (0.75 if front else 1.0))}"/>'
+            f'{wheel}</body>')
+
+
+def _patch_mesh(vertices: np.ndarray, extent: tuple[float, float, float, float]) -> tuple[str, str] | None:
+    """Vertex and face strings of a thin prism over a polygon clipped to ``extent`` (x0, x1, y0, y1)."""
+    poly = [tuple(p) for p in np.asarray(vertices, dtype=np.float64)]
+    x0, x1, y0, y1 = extent
+    for axis, bound, keep_above in ((0, x0, True), (0, x1, False), (1, y0, True), (1, y1, False)):
+        out: list[tuple[float, float]] = []
+        for j in range(len(poly)):
+            a, b = poly[j - 1], poly[j]
+            ina = (a[axis] >= bound) if keep_above else (a[axis] <= bound)
+            inb = (b[axis] >= bound) if keep_above else (b[axis] <= bound)
+            if ina != inb:
+                t = (bound - a[axis]) / (b[axis] - a[axis])
+                out.append((a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])))
+            if inb:
+                out.append(b)
+        poly = out
+        if len(poly) < 3:
+            return None
+    area2 = sum(poly[j - 1][0] * poly[j][1] - poly[j][0] * poly[j - 1][1] for j in range(len(poly)))
+    if abs(area2) < 1e-6:
+        return None
+    if area2 < 0:
+        poly = poly[::-1]
+    tris = _ear_clip(poly)
+    n = len(poly)
+    verts = [(x, y, 0.004) for x, y in poly] + [(x, y, 0.001) for x, y in poly]
+    faces = [t for t in tris] + [(c + n, b + n, a + n) for a, b, c in tris]
+    for j in range(n):
+        k = (j + 1) % n
+        faces += [(j, j + n, k + n), (j, k + n, k)]
+    return (" ".join(f"{_f(x)} {_f(y)} {_f(z)}" for x, y, z in verts),
+            " ".join(f"{a} {b} {c}" for a, b, c in faces))
+
+
+def _ear_clip(poly: list[tuple[float, float]]) -> list[tuple[int, int, int]]:
+    """Triangles of a simple counter-clockwise polygon (ear clipping)."""
+    idx = list(range(len(poly)))
+    tris: list[tuple[int, int, int]] = []
+
+    def cross(o: tuple[float, float], a: tuple[float, float], b: tuple[float, float]) -> float:
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+    guard = 0
+    while len(idx) > 3 and guard < 10000:
+        guard += 1
+        for j in range(len(idx)):
+            a, b, c = idx[j - 1], idx[j], idx[(j + 1) % len(idx)]
+            if cross(poly[a], poly[b], poly[c]) <= 0:
+                continue
+            if any(cross(poly[a], poly[b], poly[p]) >= 0 and cross(poly[b], poly[c], poly[p]) >= 0
+                   and cross(poly[c], poly[a], poly[p]) >= 0 for p in idx if p not in (a, b, c)):
+                continue
+            tris.append((a, b, c))
+            idx.pop(j)
+            break
+        else:
+            break  # degenerate: fall back to a fan of what is left
+    for j in range(1, len(idx) - 1):
+        tris.append((idx[0], idx[j], idx[j + 1]))
+    return tris
+
+
+def _scenario_visuals(scenario: Any) -> tuple[str, str, tuple[float, float, float, float]]:
+    """(assets, world geoms, ground extent) for the road markings, friction patches and lead car."""
+    road = scenario.road
+    smp = road.samples
+    pad = 60.0
+    extent = (float(smp[:, 1].min() - pad), float(smp[:, 1].max() + pad),
+              float(smp[:, 2].min() - pad), float(smp[:, 2].max() + pad))
+    assets, geoms = [], []
+    half = road.lane_width_m / 2.0
+    gaps = tuple(getattr(scenario, "lane_gaps", ()) or ())
+    starts = np.arange(0.0, road.length_m - DASH_LENGTH_M, DASH_PERIOD_M)
+    if len(starts) * 2 > MAX_DASHES:
+        starts = starts[:: int(math.ceil(len(starts) * 2 / MAX_DASHES))]
+    for s0 in starts:
+        mid = s0 + DASH_LENGTH_M / 2.0
+        if any(a <= mid <= b for a, b in gaps):
+            continue
+        x, y, psi = road.pose_at(mid)
+        for side in (1.0, -1.0):
+            px, py = x - side * half * math.sin(psi), y + side * half * math.cos(psi)
+            geoms.append(f'<geom type="box" size="{_f(DASH_LENGTH_M / 2)} {_f(MARKING_WIDTH_M / 2)} 0.002" '
+                         f'pos="{_f(px)} {_f(py)} 0.006" euler="0 0 {_f(psi)}" contype="0" conaffinity="0" '
+                         f'material="marking" group="2"/>')
+    for j, p in enumerate(scenario.friction.patches):
+        mesh = _patch_mesh(p.vertices, extent)
+        if mesh is None:
+            continue
+        assets.append(f'<mesh name="patch_{j}" vertex="{mesh[0]}" face="{mesh[1]}" inertia="shell"/>')
+        geoms.append(f'<geom name="patch_{j}" type="mesh" mesh="patch_{j}" contype="0" conaffinity="0" '
+                     f'rgba="{PATCH_RGBA.get(p.surface, PATCH_RGBA[""])}" group="2"/>')
+    if scenario.lead is not None:
+        geoms.append('<body name="lead" mocap="true" pos="0 0 0">'
+                     '<geom type="box" size="2.25 0.9 0.55" pos="0 0 0.75" contype="0" conaffinity="0" rgba="0.8 0.15 0.1 1"/>'
+                     '<geom type="box" size="1.2 0.8 0.3" pos="-0.2 0 1.5" contype="0" conaffinity="0" rgba="0.3 0.35 0.45 1"/>'
+                     '</body>')
+    return "".join(assets), "".join(geoms), extent
+
+
+def build_mjcf(vehicle: VehicleParams, scenario: Any = None, *, timestep_s: float = 0.001) -> str:
+    """MJCF text of the car (and the scenario's road markings, friction patches and lead car).
+
+    Parameters
+    ----------
+    vehicle : the parameter set; masses and inertias are matched for the whole car.
+    scenario : optional ``Scenario``; adds lane markings (dashed, ``lane_gaps`` skipped), coloured
+        non-colliding friction patches and a mocap ``lead`` body when it has a lead vehicle.
+    timestep_s : simulation step [s] (``implicitfast``).
+
+    Returns
+    -------
+    XML string for ``mujoco.MjModel.from_xml_string``.
+    """
+    g = corner_geometry(vehicle)
+    ms, offset, inertia = chassis_inertial(vehicle)
+    s = vehicle.suspension
+    body_len = vehicle.wheelbase_m + FRONT_OVERHANG_M + REAR_OVERHANG_M
+    body_cx = (vehicle.lf_m + FRONT_OVERHANG_M - vehicle.lr_m - REAR_OVERHANG_M) / 2.0
+    half_w = max(vehicle.track_f_m, vehicle.track_r_m) / 2.0 + 0.05
+    z_bottom = GROUND_CLEARANCE_M - vehicle.h_cg_m
+    z_top = BODY_HEIGHT_M - vehicle.h_cg_m
+    assets, visuals, extent = ("", "", (-500.0, 2500.0, -1000.0, 1000.0))
+    if scenario is not None:
+        assets, visuals, extent = _scenario_visuals(scenario)
+    cx, cy = (extent[0] + extent[1]) / 2.0, (extent[2] + extent[3]) / 2.0
+    hx, hy = (extent[1] - extent[0]) / 2.0, (extent[3] - extent[2]) / 2.0
+    corners = "".join(_corner_xml(vehicle, i, g) for i in range(4))
+    steer = "".join(f'<position name="steer_{c}" joint="steer_{c}" kp="{_f(STEER_KP)}" dampratio="1"/>'
+                    for c in CORNERS[:2])
+    torque = "".join(f'<motor name="torque_{c}" joint="spin_{c}"/>' for c in CORNERS)
+    return f"""<mujoco model="roadtruth_{vehicle.name}">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="{_f(timestep_s)}" integrator="implicitfast" cone="elliptic" gravity="0 0 {_f(-G)}"/>
+  <visual>
+    <global offwidth="640" offheight="480"/>
+    <quality shadowsize="2048"/>
+    <map znear="0.02" zfar="3000"/>
+  </visual>
+  <asset>
+    <texture name="sky" type="skybox" builtin="gradient" rgb1="0.55 0.7 0.9" rgb2="0.95 0.97 1" width="64" height="64"/>
+    <texture name="ground" type="2d" builtin="checker" rgb1="0.32 0.33 0.34" rgb2="0.36 0.37 0.38" width="64" height="64"/>
+    <material name="ground" texture="ground" texrepeat="{_f(hx / 5)} {_f(hy / 5)}"/>
+    <material name="body" rgba="0.15 0.35 0.7 1"/>
+    <material name="glass" rgba="0.2 0.25 0.3 0.9"/>
+    <material name="tire" rgba="0.08 0.08 0.08 1"/>
+    <material name="rim" rgba="0.7 0.7 0.72 1"/>
+    <material name="marking" rgba="0.95 0.95 0.9 1"/>
+    {assets}
+  </asset>
+  <worldbody>
+    <light name="sun" directional="true" pos="0 0 50" dir="-0.3 -0.2 -1" diffuse="0.8 0.8 0.8"/>
+    <geom name="floor" type="plane" pos="{_f(cx)} {_f(cy)} 0" size="{_f(hx)} {_f(hy)} 0.1" material="ground"
+          priority="1" contype="1" conaffinity="2" friction="1 0.005 0.0001"/>
+    {visuals}
+    <body name="chassis" pos="0 0 {_f(vehicle.h_cg_m)}">
+      <freejoint name="root"/>
+      <inertial pos="{_vec(offset)}" mass="{_f(ms)}" diaginertia="{_vec(inertia)}"/>
+      <geom name="body" type="box" pos="{_f(body_cx)} 0 {_f((z_bottom + z_top * 0.55) / 2 + 0.1)}"
+            size="{_f(body_len / 2)} {_f(half_w - 0.12)} {_f((z_top * 0.55 - z_bottom) / 2)}"
+            contype="2" conaffinity="1" mass="0" material="body"/>
+      <geom name="cabin" type="box" pos="{_f(body_cx - 0.3)} 0 {_f(z_top * 0.8)}"
+            size="{_f(body_len * 0.28)} {_f(half_w - 0.2)} {_f(z_top * 0.2 + 0.05)}"
+            contype="0" conaffinity="0" mass="0" material="glass"/>
+      <site name="imu" pos="0 0 0" size="0.03"/>
+      <site name="gnss" pos="{_f(-0.2)} 0 {_f(z_top + 0.02)}" size="0.03"/>
+      <camera name="chase" pos="{_f(-vehicle.lr_m - 7.0)} 0 {_f(2.8 - vehicle.h_cg_m)}" xyaxes="0 -1 0 0.28 0 1"/>
+      <camera name="top" mode="trackcom" pos="0 0 40" xyaxes="1 0 0 0 1 0"/>
+      {corners}
+    </body>
+  </worldbody>
+  <tendon>
+    <fixed name="arb_f" stiffness="{_f(s.arb_f_Npm)}"><joint joint="susp_fl" coef="1"/><joint joint="susp_fr" coef="-1"/></fixed>
+    <fixed name="arb_r" stiffness="{_f(s.arb_r_Npm)}"><joint joint="susp_rl" coef="1"/><joint joint="susp_rr" coef="-1"/></fixed>
+  </tendon>
+  <actuator>
+    {steer}
+    {torque}
+  </actuator>
+  <sensor>
+    <accelerometer name="imu_acc" site="imu"/>
+    <gyro name="imu_gyro" site="imu"/>
+  </sensor>
+</mujoco>
+"""

@@ -1,0 +1,468 @@
+"""Ground truth: the compiled MuJoCo stepping loop with Magic Formula tires, driver and logging.
+
+Each step (shared/notes/mujoco-car-and-tires.md, sections 4.2 and 7)::
+
+    mj_step1                      positions/velocities -> kinematics (xpos, xmat, cvel)
+    guard                         non-finite state, roll/pitch past 80 deg, chassis height -> stop
+    driver                        steering command (profile or path follower), rate limit, Ackermann;
+                                  longitudinal demand (PI / brake / time gap) -> wheel torques
+    tires (per wheel)             contact point, radial-spring F_z, slips, relaxation, mu(x, y, t),
+                                  MF combined slip -> xfrc_applied at the contact patch
+    log                           state at t_k into the preallocated row k
+    mj_step2                      forces -> accelerations (accelerometer) -> integrate to t_k+1
+
+The loop is one ``numba`` function (``_run``) that calls ``mj_step1``/``mj_step2`` of the MuJoCo
+shared library through ctypes on the raw ``MjModel``/``MjData`` pointers (``_address``) and reads
+the NumPy views of ``MjData`` that alias its memory, so it never returns to Python. The very same
+function run by the interpreter (``_run.py_func`` with the official bindings) is the reference path
+(``simulate(..., compiled=False)``); both give the same bits.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from harness.car_model import CORNERS, FRONT_OVERHANG_M, build_mjcf, corner_geometry
+from harness.driver import (
+    LEAD_LENGTH_M,
+    MAX_HANDWHEEL_RATE_RADPS,
+    ackermann_angles,
+    follow_lead_target,
+    path_follower,
+    rate_limit,
+    speed_controller,
+)
+from harness.errors import ScenarioError
+from harness.friction_map import SURFACES, mu_at
+from harness.road import road_project
+from harness.signals import WHEELS
+from harness.tire import _combined, jit, radial_load_kernel, relax_kernel, shape_array
+from harness.truth import RAW_COLUMNS, RAW_INDEX, Truth, build_frame
+from harness.vehicle import G, VehicleParams, load_vehicle
+
+MIN_START_SPEED_MPS = 3.0
+#: Divergence guard limits.
+MAX_TILT_RAD = math.radians(80.0)
+MAX_CG_HEIGHT_ABOVE_REST_M = 3.0
+MAX_STEP_JUMP_M = 1.0
+#: Brake torque follows the wheel's spin direction, smoothed over this spin rate [rad/s].
+BRAKE_OMEGA_EPS = 1.0
+#: Drive torque split (fl, fr, rl, rr) per layout.
+DRIVE_SPLIT = {"rwd": (0.0, 0.0, 0.5, 0.5), "fwd": (0.5, 0.5, 0.0, 0.0), "awd": (0.2, 0.2, 0.3, 0.3)}
+MAX_STEP_DV_MPS = 2.0  # 2000 m/s^2 for one step: only a MuJoCo reset or a blow-up does that
+DIVERGENCE_CAUSES = {1: "non-finite state", 2: "rolled over", 3: "pitched over", 4: "chassis height out of range",
+                     5: "state jumped", 6: "non-finite tire force"}
+
+# Raw log column indices (compile-time constants inside the loop).
+C_T, C_X, C_Y, C_Z = RAW_INDEX["t_s"], RAW_INDEX["x_m"], RAW_INDEX["y_m"], RAW_INDEX["z_m"]
+C_PSI, C_ROLL, C_PITCH = RAW_INDEX["psi_rad"], RAW_INDEX["roll_rad"], RAW_INDEX["pitch_rad"]
+C_VX, C_VY, C_VZ = RAW_INDEX["vx_mps"], RAW_INDEX["vy_mps"], RAW_INDEX["vz_mps"]
+C_R, C_P = RAW_INDEX["yaw_rate_radps"], RAW_INDEX["roll_rate_radps"]
+C_WB, C_AB, C_FS, C_DWB = (RAW_INDEX["wx_body_radps"], RAW_INDEX["ax_body_mps2"], RAW_INDEX["fspec_x_body_mps2"],
+                           RAW_INDEX["dwx_body_radps2"])
+C_RDOT, C_AX, C_AY = RAW_INDEX["yaw_acc_radps2"], RAW_INDEX["ax_mps2"], RAW_INDEX["ay_mps2"]
+C_DFL, C_DFR, C_CMD = RAW_INDEX["delta_fl_rad"], RAW_INDEX["delta_fr_rad"], RAW_INDEX["steer_cmd_rad"]
+C_TD, C_TB = RAW_INDEX["drive_torque_Nm"], RAW_INDEX["brake_torque_Nm"]
+C_S, C_RHO, C_YL, C_PL = RAW_INDEX["s_m"], RAW_INDEX["rho_1pm"], RAW_INDEX["y_lane_m"], RAW_INDEX["psi_lane_rad"]
+C_LX, C_LY, C_LV = RAW_INDEX["lead_x_m"], RAW_INDEX["lead_y_m"], RAW_INDEX["lead_v_mps"]
+C_RANGE, C_RR = RAW_INDEX["range_m"], RAW_INDEX["range_rate_mps"]
+C_FZ, C_FY, C_FX = RAW_INDEX["fz_fl_N"], RAW_INDEX["fy_fl_N"], RAW_INDEX["fx_fl_N"]
+C_ALPHA, C_KAPPA, C_MU, C_OMEGA = (RAW_INDEX["alpha_fl_rad"], RAW_INDEX["kappa_fl"], RAW_INDEX["mu_fl"],
+                                   RAW_INDEX["omega_fl_radps"])
+N_RAW = len(RAW_COLUMNS)
+
+# Float parameters (par) and integer parameters (ip) of the loop.
+(P_DT, P_L, P_TRACK, P_ACK, P_DMAX, P_DRATE, P_R, P_KT, P_CT, P_SIGMA, P_LS, P_MASS, P_TDRIVE, P_TBRAKE,
+ P_MU0, P_DS, P_LOOK, P_PREVIEW, P_GAIN, P_OFFSET, P_KUS, P_BRAKE_T0, P_BRAKE_DEC, P_GAP, P_STANDSTILL,
+ P_BUMPER, P_LEAD_HALF, P_HCG, N_PAR) = range(29)
+(I_STEER_MODE, I_SPEED_MODE, I_CHASSIS, I_HAS_LEAD, I_ACC, I_WHEEL, I_HEAD, I_SPIN, I_STEERQ, I_STEERA,
+ I_TORQUE) = (0, 1, 2, 3, 4, 5, 9, 13, 17, 19, 21)
+N_IP = 25
+# Loop state (st): relaxed slips (4+4), speed integrator, previous steer, unwrapped yaw, road hint,
+# last x, y, vx, vy (world) for the jump check.
+S_ALPHA, S_KAPPA, S_INT, S_DELTA, S_PSI, S_HINT, S_LASTX, S_LASTY, S_LASTVX, S_LASTVY, N_ST = (
+    0, 4, 8, 9, 10, 11, 12, 13, 14, 15, 16)
+
+
+@jit
+def _run(step1: Any, step2: Any, m_ptr: int, d_ptr: int, k0: int, k1: int, par: np.ndarray, ip: np.ndarray,
+         st: np.ndarray, shape: np.ndarray, fz0: np.ndarray, drive_split: np.ndarray, brake_split: np.ndarray,
+         steer_open: np.ndarray, v_target: np.ndarray, dv_target: np.ndarray, lead: np.ndarray,
+         samples: np.ndarray, verts: np.ndarray, meta: np.ndarray,
+         qpos: np.ndarray, qvel: np.ndarray, qacc: np.ndarray, xpos: np.ndarray, xmat: np.ndarray,
+         xipos: np.ndarray, cvel: np.ndarray, subtree_com: np.ndarray, xfrc: np.ndarray, ctrl: np.ndarray,
+         sensordata: np.ndarray, log: np.ndarray, qlog: np.ndarray) -> tuple[int, int]:
+    """Steps k0 .. k1-1; returns (first step not logged, divergence code or 0).
+
+    ``math.hypot`` is avoided on purpose: numba's version differs from CPython's in the last bit,
+    which would break the bit-equality of the compiled and interpreted paths.
+    """
+    dt = par[P_DT]
+    cb = ip[I_CHASSIS]
+    samples_ds = par[P_DS]
+    for k in range(k0, k1):
+        step1(m_ptr, d_ptr)
+        t = k * dt
+        # ---- guard (state k) -------------------------------------------------------------------
+        for j in range(qpos.shape[0]):
+            if not math.isfinite(qpos[j]):
+                return k, 1
+        for j in range(qvel.shape[0]):
+            if not math.isfinite(qvel[j]):
+                return k, 1
+        r00, r01, r02 = xmat[cb, 0], xmat[cb, 1], xmat[cb, 2]
+        r10, r11, r12 = xmat[cb, 3], xmat[cb, 4], xmat[cb, 5]
+        r20, r21, r22 = xmat[cb, 6], xmat[cb, 7], xmat[cb, 8]
+        roll = math.atan2(r21, r22)
+        pitch = -math.asin(min(max(r20, -1.0), 1.0))
+        if abs(roll) > MAX_TILT_RAD:
+            return k, 2
+        if abs(pitch) > MAX_TILT_RAD:
+            return k, 3
+        x, y, z = xpos[cb, 0], xpos[cb, 1], xpos[cb, 2]
+        if z < 0.0 or z > par[P_HCG] + MAX_CG_HEIGHT_ABOVE_REST_M:
+            return k, 4
+        if k > k0 and (math.sqrt((x - st[S_LASTX]) ** 2 + (y - st[S_LASTY]) ** 2) > MAX_STEP_JUMP_M
+                       or math.sqrt((qvel[0] - st[S_LASTVX]) ** 2 + (qvel[1] - st[S_LASTVY]) ** 2) > MAX_STEP_DV_MPS):
+            return k, 5
+        st[S_LASTX], st[S_LASTY], st[S_LASTVX], st[S_LASTVY] = x, y, qvel[0], qvel[1]
+        # ---- chassis state -------------------------------------------------------------------------
+        yaw = math.atan2(r10, r00)
+        dpsi = yaw - st[S_PSI]
+        psi = st[S_PSI] + math.atan2(math.sin(dpsi), math.cos(dpsi))
+        st[S_PSI] = psi
+        cpsi, spsi = math.cos(psi), math.sin(psi)
+        vwx, vwy, vwz = qvel[0], qvel[1], qvel[2]
+        wbx, wby, wbz = qvel[3], qvel[4], qvel[5]
+        vx = cpsi * vwx + spsi * vwy
+        vy = -spsi * vwx + cpsi * vwy
+        r = r20 * wbx + r21 * wby + r22 * wbz
+        roll_rate = wbx + (wby * math.sin(roll) + wbz * math.cos(roll)) * math.tan(pitch)
+        row = log[k]
+        row[C_T], row[C_X], row[C_Y], row[C_Z] = t, x, y, z
+        row[C_PSI], row[C_ROLL], row[C_PITCH] = psi, roll, pitch
+        row[C_VX], row[C_VY], row[C_VZ], row[C_R], row[C_P] = vx, vy, vwz, r, roll_rate
+        row[C_WB], row[C_WB + 1], row[C_WB + 2] = wbx, wby, wbz
+        # ---- road and lead ------------------------------------------------------------------------
+        i_road, s, _, _, rho = road_project(samples, samples_ds, x, y, int(st[S_HINT]))
+        st[S_HINT] = i_road
+        look = par[P_LOOK]
+        _, _, e_l, psi_l, _ = road_project(samples, samples_ds, x + look * cpsi, y + look * spsi, i_road)
+        dl = psi - psi_l
+        row[C_S], row[C_RHO], row[C_YL], row[C_PL] = s, rho, e_l, math.atan2(math.sin(dl), math.cos(dl))
+        rng = math.nan
+        if ip[I_HAS_LEAD] == 1:
+            lx, ly, lpsi, lv = lead[k, 0], lead[k, 1], lead[k, 2], lead[k, 3]
+            bx = x + par[P_BUMPER] * cpsi
+            by = y + par[P_BUMPER] * spsi
+            ex = lx - par[P_LEAD_HALF] * math.cos(lpsi) - bx
+            ey = ly - par[P_LEAD_HALF] * math.sin(lpsi) - by
+            rng = math.sqrt(ex * ex + ey * ey)
+            ux, uy = ex / max(rng, 1e-9), ey / max(rng, 1e-9)
+            vbx = vwx - r * par[P_BUMPER] * spsi
+            vby = vwy + r * par[P_BUMPER] * cpsi
+            row[C_RR] = (lv * math.cos(lpsi) - vbx) * ux + (lv * math.sin(lpsi) - vby) * uy
+            row[C_LX], row[C_LY], row[C_LV] = lx, ly, lv
+        else:
+            row[C_RR] = math.nan
+            row[C_LX], row[C_LY], row[C_LV] = math.nan, math.nan, math.nan
+        row[C_RANGE] = rng
+        # ---- driver: steering ------------------------------------------------------------------------
+        if ip[I_STEER_MODE] == 0:
+            cmd = steer_open[k]
+        else:
+            cmd = path_follower(samples, samples_ds, s, x, y, psi, vx, par[P_PREVIEW], par[P_GAIN],
+                                par[P_OFFSET], par[P_L], par[P_KUS])
+        delta = rate_limit(st[S_DELTA], cmd, par[P_DRATE], par[P_DMAX], dt)
+        st[S_DELTA] = delta
+        d_fl, d_fr = ackermann_angles(delta, par[P_L], par[P_TRACK], par[P_ACK])
+        ctrl[ip[I_STEERA]] = d_fl
+        ctrl[ip[I_STEERA + 1]] = d_fr
+        row[C_CMD] = delta
+        row[C_DFL] = qpos[ip[I_STEERQ]]
+        row[C_DFR] = qpos[ip[I_STEERQ + 1]]
+        # ---- driver: speed ---------------------------------------------------------------------------
+        mode = ip[I_SPEED_MODE]
+        if mode == 2:
+            vt = follow_lead_target(lead[k, 3], rng, vx, par[P_GAP], par[P_STANDSTILL])
+            a_dem, st[S_INT] = speed_controller(0, t, vx, vt, 0.0, st[S_INT], 0.0, 0.0, dt)
+        else:
+            a_dem, st[S_INT] = speed_controller(mode, t, vx, v_target[k], dv_target[k], st[S_INT],
+                                                par[P_BRAKE_T0], par[P_BRAKE_DEC], dt)
+        torque = par[P_MASS] * a_dem * par[P_R]
+        t_drive = min(max(torque, 0.0), par[P_TDRIVE])
+        t_brake = max(-torque, 0.0)
+        row[C_TD], row[C_TB] = t_drive, t_brake
+        for i in range(4):
+            omega_rel = qvel[ip[I_SPIN + i]]
+            tb = min(brake_split[i] * t_brake, par[P_TBRAKE])
+            ctrl[ip[I_TORQUE + i]] = drive_split[i] * t_drive - tb * min(max(omega_rel / BRAKE_OMEGA_EPS, -1.0), 1.0)
+            row[C_OMEGA + i] = omega_rel
+        # ---- tires -------------------------------------------------------------------------------------
+        R = par[P_R]
+        for i in range(4):
+            wb = ip[I_WHEEL + i]
+            hb = ip[I_HEAD + i]
+            cx, cy, cz = xpos[wb, 0], xpos[wb, 1], xpos[wb, 2]
+            hx, hy = xmat[hb, 0], xmat[hb, 3]
+            hn = math.sqrt(hx * hx + hy * hy)
+            exx, exy = hx / hn, hy / hn
+            eyx, eyy = -exy, exx
+            ax_, ay_, az_ = xmat[hb, 1], xmat[hb, 4], xmat[hb, 7]  # axle direction
+            # Lowest point of the wheel circle: -z made orthogonal to the axle.
+            dx_, dy_, dz_ = az_ * ax_, az_ * ay_, -1.0 + az_ * az_
+            dn = math.sqrt(dx_ * dx_ + dy_ * dy_ + dz_ * dz_)
+            px = cx + R * dx_ / dn
+            py = cy + R * dy_ / dn
+            defl = -(cz + R * dz_ / dn)
+            # Velocity of the wheel centre (cvel is [w; v] at the subtree COM of the root body).
+            wx_, wy_, wz_ = cvel[wb, 0], cvel[wb, 1], cvel[wb, 2]
+            ox, oy, oz = cx - subtree_com[cb, 0], cy - subtree_com[cb, 1], cz - subtree_com[cb, 2]
+            vcx = cvel[wb, 3] + wy_ * oz - wz_ * oy
+            vcy = cvel[wb, 4] + wz_ * ox - wx_ * oz
+            vcz = cvel[wb, 5] + wx_ * oy - wy_ * ox
+            spin = wx_ * ax_ + wy_ * ay_ + wz_ * az_
+            vxw = vcx * exx + vcy * exy
+            vyw = vcx * eyx + vcy * eyy
+            fz = radial_load_kernel(defl, -vcz, par[P_KT], par[P_CT])
+            re = R - max(defl, 0.0) / 3.0
+            vxa = max(abs(vxw), 1.0)
+            kappa = relax_kernel(st[S_KAPPA + i], (spin * re - vxw) / vxa, vxw, par[P_SIGMA], dt)
+            alpha = relax_kernel(st[S_ALPHA + i], -math.atan(vyw / vxa), vxw, par[P_SIGMA], dt)
+            st[S_KAPPA + i], st[S_ALPHA + i] = kappa, alpha
+            mu = mu_at(par[P_MU0], verts, meta, px, py, t)
+            fx, fy = _combined(alpha, kappa, fz, mu, shape[i], fz0[i], par[P_LS])
+            if not (math.isfinite(fx) and math.isfinite(fy) and math.isfinite(fz)):
+                return k, 6  # MuJoCo would silently reset the state on a NaN force
+            Fx = fx * exx + fy * eyx
+            Fy = fx * exy + fy * eyy
+            xfrc[wb, 0], xfrc[wb, 1], xfrc[wb, 2] = Fx, Fy, fz
+            lx_, ly_, lz_ = px - xipos[wb, 0], py - xipos[wb, 1], -xipos[wb, 2]
+            xfrc[wb, 3] = ly_ * fz - lz_ * Fy
+            xfrc[wb, 4] = lz_ * Fx - lx_ * fz
+            xfrc[wb, 5] = lx_ * Fy - ly_ * Fx
+            row[C_FZ + i], row[C_FY + i], row[C_FX + i] = fz, fy, fx
+            row[C_ALPHA + i], row[C_KAPPA + i], row[C_MU + i] = alpha, kappa, mu
+        for j in range(qpos.shape[0]):
+            qlog[k, j] = qpos[j]
+        step2(m_ptr, d_ptr)
+        # ---- accelerations of state k (computed by step2) ---------------------------------------
+        a0 = ip[I_ACC]
+        fsx, fsy, fsz = sensordata[a0], sensordata[a0 + 1], sensordata[a0 + 2]
+        # Specific force minus gravity seen in the body frame: a = f + R^T g, g = (0, 0, -G).
+        abx, aby, abz = fsx - G * r20, fsy - G * r21, fsz - G * r22
+        row[C_FS], row[C_FS + 1], row[C_FS + 2] = fsx, fsy, fsz
+        row[C_AB], row[C_AB + 1], row[C_AB + 2] = abx, aby, abz
+        awx = r00 * abx + r01 * aby + r02 * abz
+        awy = r10 * abx + r11 * aby + r12 * abz
+        row[C_AX] = cpsi * awx + spsi * awy
+        row[C_AY] = -spsi * awx + cpsi * awy
+        dwx, dwy, dwz = qacc[3], qacc[4], qacc[5]
+        row[C_DWB], row[C_DWB + 1], row[C_DWB + 2] = dwx, dwy, dwz
+        row[C_RDOT] = r20 * dwx + r21 * dwy + r22 * dwz
+    return k1, 0
+
+
+# ---- setup -----------------------------------------------------------------------------------------
+
+def _mujoco_library() -> ctypes.CDLL:
+    """The MuJoCo shared library shipped with the Python bindings (the ABI is pinned by the version)."""
+    here = Path(os.path.dirname(mujoco.__file__))
+    candidates = sorted(here.glob(f"libmujoco.so.{mujoco.__version__}")) or sorted(here.glob("libmujoco*.so*")) \
+        or sorted(here.glob("libmujoco*.dylib")) or sorted(here.glob("mujoco*.dll"))
+    if not candidates:
+        raise RuntimeError(f"no MuJoCo shared library next to {here}")
+    return ctypes.CDLL(str(candidates[0]))
+
+
+_STEP_FUNCTIONS: tuple[Any, Any] | None = None
+
+
+def _step_functions() -> tuple[Any, Any]:
+    global _STEP_FUNCTIONS
+    if _STEP_FUNCTIONS is None:
+        lib = _mujoco_library()
+        fns = []
+        for name in ("mj_step1", "mj_step2"):
+            f = getattr(lib, name)
+            # Pointers passed as machine-word integers (the raw addresses of MjModel/MjData).
+            f.argtypes = [ctypes.c_size_t, ctypes.c_size_t]
+            f.restype = None
+            fns.append(f)
+        _STEP_FUNCTIONS = (fns[0], fns[1])
+    return _STEP_FUNCTIONS
+
+
+def _resolve_vehicle(scenario: Any, vehicle: VehicleParams | str | None) -> VehicleParams:
+    if vehicle is None:
+        return load_vehicle(scenario.vehicle)
+    if isinstance(vehicle, VehicleParams):
+        return vehicle
+    return load_vehicle(vehicle)
+
+
+def _lead_track(scenario: Any, v: VehicleParams, t: np.ndarray) -> np.ndarray:
+    """(n, 4) lead [x, y, psi, v] on the time grid (kinematic, on the road centre line)."""
+    out = np.full((t.shape[0], 4), np.nan)
+    if scenario.lead is None:
+        return out
+    s = scenario.lead.path_coordinate(t, v.lf_m)
+    x, y, psi = scenario.road.pose_at(s)
+    out[:, 0], out[:, 1], out[:, 2], out[:, 3] = x, y, psi, scenario.lead.speed(t)
+    return out
+
+
+def _initial_state(m: mujoco.MjModel, d: mujoco.MjData, v: VehicleParams, scenario: Any) -> None:
+    """Road start pose at the initial speed, suspension at its static equilibrium, wheels rolling."""
+    mujoco.mj_resetData(m, d)
+    x0, y0, psi0 = (float(a) for a in scenario.road.samples[0, 1:4])
+    v0 = scenario.initial_speed_mps
+    d.qpos[0:3] = (x0, y0, v.h_cg_m)
+    d.qpos[3:7] = (math.cos(psi0 / 2.0), 0.0, 0.0, math.sin(psi0 / 2.0))
+    d.qvel[0:3] = (v0 * math.cos(psi0), v0 * math.sin(psi0), 0.0)
+    defl = corner_geometry(v).tire_deflection
+    for i, c in enumerate(CORNERS):
+        d.qvel[m.jnt_dofadr[m.joint(f"spin_{c}").id]] = v0 / (v.wheel_radius_m - defl[i] / 3.0)
+
+
+def _events(scenario: Any, frame_mu: np.ndarray, t: np.ndarray, status_t: float | None,
+            status: str) -> tuple[tuple[float, str], ...]:
+    """Scenario events + friction changes under each wheel + driver actions (+ divergence)."""
+    names = {v: k for k, v in SURFACES.items()}
+    for p in scenario.friction.patches:
+        names.setdefault(p.mu, p.name)
+    ev: list[tuple[float, str]] = [(float(a), str(b)) for a, b in scenario.events]
+    if t.size:
+        for i, w in enumerate(WHEELS):
+            mu = frame_mu[:, i]
+            for k in np.flatnonzero(mu[1:] != mu[:-1]) + 1:
+                label = names.get(float(mu[k]), "a patch")
+                ev.append((float(t[k]), f"{w} enters {label} (μ {mu[k]:g})"))
+    own_times = [float(a) for a, _ in scenario.events]
+    duration = t[-1] if t.size else -1.0
+
+    def add_driver_event(t_s: float, label: str) -> None:
+        # The scenario usually labels its own manoeuvre start; do not say it twice.
+        if t_s <= duration and not any(abs(t_s - a) < 1e-6 for a in own_times):
+            ev.append((t_s, label))
+
+    st = scenario.driver.steer
+    if st.type != "path_follower" and (st.amplitude_rad != 0.0 or st.type == "ramp"):
+        add_driver_event(st.t_start_s, f"steer {st.type.replace('_', ' ')} starts")
+    sp = scenario.driver.speed
+    if sp.type == "brake":
+        add_driver_event(sp.t_start_s, f"brake {sp.decel_mps2:g} m/s² starts")
+    if status_t is not None:
+        ev.append((status_t, status))
+    return tuple(sorted(ev, key=lambda e: e[0]))
+
+
+def simulate(scenario: Any, vehicle: VehicleParams | str | None = None, seed: int | None = None,
+             dt_s: float = 0.001, *, compiled: bool = True) -> Truth:
+    """Simulate a scenario and return its ground truth.
+
+    Parameters
+    ----------
+    scenario : ``harness.scenario.Scenario``.
+    vehicle : a ``VehicleParams``, a set name/path, or None for the scenario's own vehicle.
+    seed : recorded in the result (default: the scenario's); the truth itself has no randomness.
+    dt_s : simulation step [s] (1 kHz default).
+    compiled : run the numba-compiled loop (default) or the same loop interpreted with the
+        official MuJoCo bindings (the reference path; identical results, ~100x slower).
+
+    Returns
+    -------
+    Truth; ``status`` is ``"ok"`` or ``"diverged: <cause> at t=<t> s"`` with the frame truncated.
+
+    Raises
+    ------
+    ScenarioError : initial speed below 3 m/s, or a step that is not positive.
+    """
+    if scenario.initial_speed_mps < MIN_START_SPEED_MPS:
+        raise ScenarioError(f"initial speed {scenario.initial_speed_mps:g} m/s is below the tire model's "
+                            f"limit ({MIN_START_SPEED_MPS:g} m/s)", source=scenario.path, field="initial_speed_mps")
+    if not (dt_s > 0.0 and dt_s <= 0.01):
+        raise ScenarioError(f"time step must be in (0, 0.01] s (got {dt_s!r})", field="dt_s")
+    v = _resolve_vehicle(scenario, vehicle)
+    xml = build_mjcf(v, scenario, timestep_s=dt_s)
+    m = mujoco.MjModel.from_xml_string(xml)
+    d = mujoco.MjData(m)
+    _initial_state(m, d, v, scenario)
+
+    n = int(round(scenario.duration_s / dt_s)) + 1
+    t = np.arange(n) * dt_s
+    drv = scenario.driver
+    steer_open = np.ascontiguousarray(drv.steer_profile(t))
+    v_target, dv_target = (np.ascontiguousarray(a) for a in drv.speed_target(t, scenario.initial_speed_mps))
+    lead = _lead_track(scenario, v, t)
+    verts, meta = scenario.friction.arrays()
+    g = corner_geometry(v)
+
+    par = np.zeros(N_PAR)
+    par[P_DT], par[P_L], par[P_TRACK], par[P_ACK] = dt_s, v.wheelbase_m, v.track_f_m, v.steering.ackermann
+    par[P_DMAX] = v.steering.max_road_wheel_angle_rad
+    par[P_DRATE] = MAX_HANDWHEEL_RATE_RADPS / v.steering.ratio
+    par[P_R], par[P_KT], par[P_CT] = v.wheel_radius_m, v.tires.radial_stiffness_Npm, v.tires.radial_damping_Nspm
+    par[P_SIGMA], par[P_LS] = v.tires.relaxation_length_m, v.tires.load_sensitivity
+    par[P_MASS], par[P_TDRIVE], par[P_TBRAKE] = v.mass_kg, v.drivetrain.max_drive_torque_Nm, v.drivetrain.max_brake_torque_Nm
+    par[P_MU0], par[P_DS], par[P_LOOK] = scenario.friction.mu_default, scenario.road.ds_m, scenario.lookahead_m
+    par[P_PREVIEW], par[P_GAIN], par[P_OFFSET] = drv.steer.preview_s, drv.steer.gain, drv.steer.lane_offset_m
+    par[P_KUS] = v.understeer_gradient_radpmps2
+    par[P_BRAKE_T0], par[P_BRAKE_DEC] = drv.speed.t_start_s, drv.speed.decel_mps2
+    par[P_GAP], par[P_STANDSTILL] = drv.speed.time_gap_s, drv.speed.standstill_m
+    par[P_BUMPER], par[P_LEAD_HALF], par[P_HCG] = v.lf_m + FRONT_OVERHANG_M, LEAD_LENGTH_M / 2.0, v.h_cg_m
+
+    ip = np.zeros(N_IP, dtype=np.int64)
+    ip[I_STEER_MODE] = 1 if drv.closed_loop_steer else 0
+    ip[I_SPEED_MODE] = {"hold": 0, "profile": 0, "brake": 1, "follow_lead": 2}[drv.speed.type]
+    ip[I_CHASSIS] = m.body("chassis").id
+    ip[I_HAS_LEAD] = 1 if scenario.lead is not None else 0
+    ip[I_ACC] = m.sensor_adr[m.sensor("imu_acc").id]
+    for i, c in enumerate(CORNERS):
+        ip[I_WHEEL + i] = m.body(f"wheel_{c}").id
+        ip[I_HEAD + i] = m.body(f"knuckle_{c}" if i < 2 else f"upright_{c}").id
+        ip[I_SPIN + i] = m.jnt_dofadr[m.joint(f"spin_{c}").id]
+        ip[I_TORQUE + i] = m.actuator(f"torque_{c}").id
+    for i, c in enumerate(CORNERS[:2]):
+        ip[I_STEERQ + i] = m.jnt_qposadr[m.joint(f"steer_{c}").id]
+        ip[I_STEERA + i] = m.actuator(f"steer_{c}").id
+
+    st = np.zeros(N_ST)
+    st[S_PSI] = float(scenario.road.samples[0, 3])
+    bias = v.drivetrain.brake_bias_front
+    brake_split = np.array([bias / 2, bias / 2, (1 - bias) / 2, (1 - bias) / 2])
+    drive_split = np.array(DRIVE_SPLIT[v.drivetrain.layout], dtype=np.float64)
+    log = np.full((n, N_RAW), np.nan)
+    qlog = np.zeros((n, m.nq))
+    args = (0, n, par, ip, st, shape_array(v.tires.front, v.tires.rear), np.ascontiguousarray(g.fz_static),
+            drive_split, brake_split, steer_open, v_target, dv_target, lead,
+            np.ascontiguousarray(scenario.road.samples), verts, meta,
+            d.qpos, d.qvel, d.qacc, d.xpos, d.xmat, d.xipos, d.cvel, d.subtree_com, d.xfrc_applied, d.ctrl,
+            d.sensordata, log, qlog)
+    if compiled:
+        step1, step2 = _step_functions()
+        k_end, code = _run(step1, step2, m._address, d._address, *args)
+    else:
+        def step1(_m: int, _d: int) -> None:
+            mujoco.mj_step1(m, d)
+
+        def step2(_m: int, _d: int) -> None:
+            mujoco.mj_step2(m, d)
+
+        k_end, code = _run.py_func(step1, step2, 0, 0, *args)
+
+    status, status_t = "ok", None
+    if code != 0:
+        status_t = float(k_end * dt_s)
+        status = f"diverged: {DIVERGENCE_CAUSES[code]} at t={status_t:.3f} s"
+    frame = build_frame(log[:k_end], v.lf_m, v.lr_m)
+    events = _events(scenario, log[:k_end, C_MU:C_MU + 4], t[:k_end], status_t, status)
+    return Truth(scenario=scenario, vehicle=v, seed=int(scenario.seed if seed is None else seed), dt_s=dt_s,
+                 frame=frame, qpos=qlog[:k_end], model_xml=xml, status=status, events=events)

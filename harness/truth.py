@@ -1,0 +1,117 @@
+"""The ground-truth record handed out by ``harness.simulate``: one row per simulation step.
+
+``Truth.frame`` holds every canonical signal of CONTRACT.md (``harness.signals.CANONICAL``) plus the
+extras listed in docs/ARCHITECTURE.md ("Truth") and the IMU-site specific force. ``RAW_COLUMNS`` is
+the order in which the compiled stepping loop writes its log; ``build_frame`` adds the columns that
+are cheap functions of logged ones (sideslip, axle slip angles and forces, mean steer angle).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from harness.errors import InputError
+from harness.signals import CANONICAL, WHEELS
+
+#: Per-wheel quantities; each is logged as four consecutive columns fl, fr, rl, rr.
+WHEEL_QUANTITIES: tuple[str, ...] = ("fz_{}_N", "fy_{}_N", "fx_{}_N", "alpha_{}_rad", "kappa_{}", "mu_{}",
+                                     "omega_{}_radps")
+
+#: Columns written by the stepping loop, in this order.
+RAW_COLUMNS: tuple[str, ...] = (
+    "t_s", "x_m", "y_m", "z_m", "psi_rad", "roll_rad", "pitch_rad",
+    "vx_mps", "vy_mps", "vz_mps", "yaw_rate_radps", "roll_rate_radps",
+    "wx_body_radps", "wy_body_radps", "wz_body_radps",
+    "ax_body_mps2", "ay_body_mps2", "az_body_mps2",
+    "fspec_x_body_mps2", "fspec_y_body_mps2", "fspec_z_body_mps2",
+    "dwx_body_radps2", "dwy_body_radps2", "dwz_body_radps2", "yaw_acc_radps2",
+    "ax_mps2", "ay_mps2",
+    "delta_fl_rad", "delta_fr_rad", "steer_cmd_rad", "drive_torque_Nm", "brake_torque_Nm",
+    "s_m", "rho_1pm", "y_lane_m", "psi_lane_rad",
+    "lead_x_m", "lead_y_m", "lead_v_mps", "range_m", "range_rate_mps",
+    *(q.format(w) for q in WHEEL_QUANTITIES for w in WHEELS),
+)
+RAW_INDEX: dict[str, int] = {name: i for i, name in enumerate(RAW_COLUMNS)}
+
+#: Extra (non-canonical) columns of the frame, for sensors and renders.
+EXTRA_COLUMNS: tuple[str, ...] = (
+    "z_m", "vz_mps", "wx_body_radps", "wy_body_radps", "wz_body_radps",
+    "dwx_body_radps2", "dwy_body_radps2", "dwz_body_radps2",
+    "ax_body_mps2", "ay_body_mps2", "az_body_mps2",
+    "fspec_x_body_mps2", "fspec_y_body_mps2", "fspec_z_body_mps2",
+    "s_m", "lead_x_m", "lead_y_m", "lead_v_mps", "steer_cmd_rad", "drive_torque_Nm", "brake_torque_Nm",
+)
+FRAME_COLUMNS: tuple[str, ...] = (*CANONICAL.keys(), *EXTRA_COLUMNS)
+
+
+def build_frame(raw: np.ndarray, lf_m: float, lr_m: float) -> pd.DataFrame:
+    """Truth frame from the loop's raw log.
+
+    Parameters
+    ----------
+    raw : (n, len(RAW_COLUMNS)) array in ``RAW_COLUMNS`` order.
+    lf_m, lr_m : CG to front / rear axle [m], for the axle slip angles.
+
+    Returns
+    -------
+    DataFrame with ``FRAME_COLUMNS``. Derived columns: β = atan2(v_y, v_x); δ = (δ_fl + δ_fr)/2;
+    α_f = δ − atan((v_y + l_f r)/v_x), α_r = −atan((v_y − l_r r)/v_x) (CONTRACT.md); F_y,f/r = sums of
+    the wheels' tire-frame lateral forces.
+    """
+    cols = {name: raw[:, i] for i, name in enumerate(RAW_COLUMNS)}
+    vx, vy, r = cols["vx_mps"], cols["vy_mps"], cols["yaw_rate_radps"]
+    delta = 0.5 * (cols["delta_fl_rad"] + cols["delta_fr_rad"])
+    cols["beta_rad"] = np.arctan2(vy, vx)
+    cols["delta_rad"] = delta
+    cols["alpha_f_rad"] = delta - np.arctan((vy + lf_m * r) / vx)
+    cols["alpha_r_rad"] = -np.arctan((vy - lr_m * r) / vx)
+    cols["fy_f_N"] = cols["fy_fl_N"] + cols["fy_fr_N"]
+    cols["fy_r_N"] = cols["fy_rl_N"] + cols["fy_rr_N"]
+    return pd.DataFrame({name: cols[name] for name in FRAME_COLUMNS})
+
+
+@dataclass(frozen=True, eq=False)
+class Truth:
+    """Ground truth of one simulated scenario.
+
+    Attributes
+    ----------
+    scenario : the ``Scenario`` simulated.
+    vehicle : the ``VehicleParams`` used.
+    seed : the run's seed (recorded; the truth itself is deterministic).
+    dt_s : simulation step [s].
+    frame : DataFrame, one row per step, ``FRAME_COLUMNS`` (canonical signals + extras).
+    qpos : (n, nq) MuJoCo generalized positions per step (for renders).
+    model_xml : MJCF that rebuilds the model (``mujoco.MjModel.from_xml_string``).
+    status : ``"ok"`` or ``"diverged: <cause> at t=<t> s"`` (frame truncated there).
+    events : ((t_s, label), ...) sorted by time: the scenario's own plus the simulator's.
+    """
+
+    scenario: Any
+    vehicle: Any
+    seed: int
+    dt_s: float
+    frame: pd.DataFrame
+    qpos: np.ndarray
+    model_xml: str
+    status: str
+    events: tuple[tuple[float, str], ...]
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    def at_rate(self, hz: float) -> pd.DataFrame:
+        """The frame decimated to ``hz`` (every k-th step; ``1/hz`` must be a multiple of ``dt_s``)."""
+        if not hz > 0.0:
+            raise InputError(f"log rate must be > 0 Hz (got {hz!r})", field="--log-rate")
+        k = 1.0 / (hz * self.dt_s)
+        step = int(round(k))
+        if step < 1 or abs(k - step) > 1e-6 * k:
+            raise InputError(f"log rate {hz:g} Hz does not divide the simulation rate {1.0 / self.dt_s:g} Hz",
+                             field="--log-rate")
+        return self.frame.iloc[::step].reset_index(drop=True)
