@@ -237,6 +237,10 @@ def parse_vehicle(data: dict[str, Any], source: str) -> VehicleParams:
     if 4 * v.unsprung_mass_kg >= 0.5 * v.mass_kg:
         raise VehicleError(f"unsprung mass 4x{v.unsprung_mass_kg:g} kg is not below half the total mass",
                            source=source, field="unsprung_mass_kg")
+    if v.roll_inertia_kgm2 + v.pitch_inertia_kgm2 < v.yaw_inertia_kgm2:
+        raise VehicleError(f"roll + pitch inertia {v.roll_inertia_kgm2 + v.pitch_inertia_kgm2:g} kg m^2 is below "
+                           f"the yaw inertia {v.yaw_inertia_kgm2:g}: no rigid body has that (Ix + Iy >= Iz)",
+                           source=source, field="pitch_inertia_kgm2")
     if v.h_cg_m <= v.wheel_radius_m * 0.5:
         raise VehicleError(f"CG height {v.h_cg_m:g} m is below half the wheel radius", source=source,
                            field="h_cg_m")

@@ -90,3 +90,8 @@ def test_malformed_yaml(tmp_path: Path) -> None:
     p.write_text("mass_kg: [1500\n")
     with pytest.raises(VehicleError, match="broken.yaml: malformed YAML"):
         load_vehicle(p)
+
+
+def test_impossible_inertia_is_rejected(tmp_path: Path) -> None:
+    with pytest.raises(VehicleError, match="pitch_inertia_kgm2: roll \\+ pitch inertia"):
+        load_vehicle(_write(tmp_path, {"pitch_inertia_kgm2": 100.0}))
