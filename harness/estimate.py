@@ -1,0 +1,137 @@
+"""Run observers over a measurement frame and isolate their failures.
+
+One observer that raises, diverges or lacks an input never stops the others: it gets a status
+(``ok``, ``diverged``, ``error: <msg>``, ``skipped: <reason>``) and the run carries on.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from harness.errors import InputError
+from harness.vehicle import VehicleParams
+
+ESTIMATE_COLUMNS = ("t_s", "observer", "state", "value", "lo", "hi", "var")
+
+#: |estimate| above which a state is absurd; sustained for ``ABSURD_DURATION_S`` -> "diverged".
+ABSURD_LIMITS: dict[str, float] = {
+    "beta_rad": 1.0, "alpha_f_rad": 1.0, "alpha_r_rad": 1.0, "vy_mps": 30.0, "yaw_rate_radps": 5.0,
+    "vx_mps": 150.0, "fy_f_N": 1e5, "fy_r_N": 1e5,
+}
+ABSURD_DURATION_S = 1.0
+
+
+@dataclass(frozen=True)
+class ObserverRun:
+    """Outcome of one observer over one measurement frame."""
+
+    status: str             # ok | diverged | error: <msg> | skipped: <reason>
+    us_per_step: float      # wall time of the estimation loop per step [us] (NaN if not run)
+    certified: bool         # the design carries a valid certificate (False for baselines)
+    design_reason: str
+    n_steps: int
+    design_status: str = ""  # DesignStatus value of the observer's design
+    detail: str = ""         # why it diverged, where it did
+
+
+def _one_line(exc: BaseException) -> str:
+    text = f"{type(exc).__name__}: {exc}".strip().splitlines()
+    return text[0][:300] if text else type(exc).__name__
+
+
+def _diverged(track_x: np.ndarray, t: np.ndarray, states: tuple[str, ...]) -> str | None:
+    """A reason if the estimates are non-finite or absurd for a long stretch, else None."""
+    if not np.all(np.isfinite(track_x)):
+        bad = int(np.argmax(~np.all(np.isfinite(track_x), axis=1)))
+        return f"non-finite estimate at t={t[bad]:.3f} s"
+    for j, s in enumerate(states):
+        lim = ABSURD_LIMITS.get(s)
+        if lim is None:
+            continue
+        over = np.abs(track_x[:, j]) > lim
+        if not over.any():
+            continue
+        # longest run of consecutive absurd samples, measured in time
+        edges = np.diff(np.concatenate([[0], over.astype(np.int8), [0]]))
+        starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+        longest = float(np.max(t[ends] - t[starts]))
+        if longest >= ABSURD_DURATION_S:
+            return f"|{s}| > {lim:g} for {longest:.2f} s"
+    return None
+
+
+def run_observers(measurements: pd.DataFrame, vehicle: VehicleParams, names: list[str], *,
+                  options: Mapping[str, Mapping[str, Any]] | None = None
+                  ) -> tuple[pd.DataFrame, dict[str, ObserverRun]]:
+    """Run each observer of ``names`` over ``measurements``.
+
+    Parameters
+    ----------
+    measurements : DataFrame
+        ``t_s`` [s] plus measurement columns (ARCHITECTURE "Measurements"); NaN = no new sample.
+    vehicle : VehicleParams
+        The vehicle the observers are built and designed for.
+    names : list of str
+        Registered observer names; an unknown name raises ``InputError`` before anything runs.
+    options : mapping name -> options, optional
+        Per-observer options passed to ``create``.
+
+    Returns
+    -------
+    estimates : DataFrame
+        Long format ``t_s, observer, state, value, lo, hi, var`` (lo/hi NaN without bounds, var NaN
+        without covariance). A diverged observer's estimates are kept (for plots); failed ones are absent.
+    runs : dict name -> ObserverRun
+    """
+    from observers.registry import create, observer_class
+
+    options = dict(options or {})
+    unknown = sorted(set(options) - set(names))
+    if unknown:
+        raise InputError(f"options given for observer {unknown[0]!r}, which is not being run", field="options")
+    if "t_s" not in measurements.columns:
+        raise InputError("measurement frame has no t_s column", field="t_s")
+    for n in names:
+        observer_class(n)  # unknown names fail here, before any work
+    t = measurements["t_s"].to_numpy(dtype=float)
+    frames: list[pd.DataFrame] = []
+    runs: dict[str, ObserverRun] = {}
+    for name in names:
+        cls = observer_class(name)
+        missing = [c for c in cls.inputs if c not in measurements.columns
+                   or not np.isfinite(measurements[c].to_numpy(dtype=float)).any()]
+        if missing:
+            runs[name] = ObserverRun(f"skipped: missing {missing[0]}", math.nan, False, "", 0)
+            continue
+        certified, reason, dstatus = False, "", ""
+        try:
+            obs = create(name, vehicle, **dict(options.get(name, {})))
+            d = obs.design()
+            certified, reason, dstatus = bool(d.certified), d.reason, d.status.value
+            Y = measurements[list(cls.inputs)].to_numpy(dtype=float)
+            t0 = time.perf_counter()
+            track = obs.run(t, Y)
+            elapsed = time.perf_counter() - t0
+        except InputError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - one failing observer must not stop the others
+            runs[name] = ObserverRun(f"error: {_one_line(exc)}", math.nan, certified, reason, 0, dstatus)
+            continue
+        n = len(t)
+        why = _diverged(track.x, t, track.states)
+        status = "diverged" if why else "ok"
+        runs[name] = ObserverRun(status, elapsed / max(n, 1) * 1e6, certified, reason, n, dstatus, why or "")
+        frames.append(track.to_frame())
+    if frames:
+        est = pd.concat(frames, ignore_index=True)
+    else:
+        est = pd.DataFrame({c: pd.Series(dtype=object if c in ("observer", "state") else float)
+                            for c in ESTIMATE_COLUMNS})
+    return est[list(ESTIMATE_COLUMNS)], runs
