@@ -1,0 +1,291 @@
+"""``roadtruth replay``: run the observers on a recorded log and score them against its reference channels.
+
+The log takes the place of simulated truth; everything downstream is the simulated suite's:
+``harness.estimate.run_observers`` runs the observers, ``harness.scoring.score`` computes the same
+metrics, ``harness.report.build_report`` writes the same report (without rendered frames).
+
+Steps: read the log and map it to canonical signals (``harness/replay_log.py``), cut it into
+segments (``harness/replay_segments.py``: gaps, standstill, missing speed, irregular timestamps),
+run every observer on every usable segment from a fresh reset, score on the reference channels of
+those segments only, and report the skipped ones.
+
+Folder written (``out``), like a one-scenario ``run`` whose scenario is the log's name::
+
+    metrics.csv  run.json  index.html
+    <log>/truth.csv         the log's reference channels on the log's own time base (+ segment)
+    <log>/measurements.csv  what the observers were fed, per run segment (+ segment, log_valid)
+    <log>/estimates.csv     t_s, observer, state, value, lo, hi (+ var, segment)
+    <log>/segments.csv      every segment, run or skipped, with the reason
+    <log>/events.json       skipped segments as report events
+    <log>/scenario.json     what the report shows about the log
+
+Scoring across segments. ``score`` holds estimates zero-order onto the truth times. Run segments are
+therefore scored on one *stitched* time axis on which the skipped spans are cut out (each segment is
+shifted to start two median steps after the previous one ends), so no estimate is ever held across a
+skipped span and every metric pools the scored samples of all run segments exactly. ``conv_time_s`` is
+measured from the start of the first run segment on that axis. Files keep the log's own times.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from harness.errors import LogError
+from harness.outdir import atomic_output_dir
+from harness.replay_log import ColumnMap, apply_map, identity_map, load_column_map, read_log
+from harness.replay_segments import RUN, Segment, segment_log, segment_measurements, segments_frame
+from harness.report.rundata import git_revision, versions, write_csv, write_json
+from harness.vehicle import VehicleParams, load_vehicle
+
+Progress = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class ReplayLog:
+    """A log made ready for the observers.
+
+    ``frame`` is the canonical frame on the log's own time base (n rows); ``segments`` covers it;
+    ``measurements`` holds one observer input frame per run segment (keyed by segment index).
+    """
+
+    path: Path
+    name: str
+    column_map: ColumnMap
+    frame: pd.DataFrame
+    segments: tuple[Segment, ...]
+    measurements: dict[int, pd.DataFrame]
+
+    @property
+    def run_segments(self) -> tuple[Segment, ...]:
+        return tuple(s for s in self.segments if s.status == RUN)
+
+
+def log_name(path: Path) -> str:
+    """Scenario name of a log: its file name without the format suffixes (``a.csv.gz`` → ``a``)."""
+    name = path.name
+    for suffix in (".gz", ".csv", ".tsv", ".txt", ".parquet", ".pq", ".mat"):
+        if name.lower().endswith(suffix):
+            name = name[: -len(suffix)]
+    return name or path.stem
+
+
+def prepare_log(log: Path, columns: str | Path | None = None) -> ReplayLog:
+    """Read, map, check and segment a log (no observers run). Raises ``LogError`` on a bad log."""
+    log = Path(log)
+    raw = read_log(log)
+    cmap = load_column_map(columns) if columns is not None else identity_map(list(raw.columns), str(log))
+    frame = apply_map(raw, cmap, str(log))
+    segs = segment_log(frame, cmap.measured, cmap.rules)
+    runs = [s for s in segs if s.status == RUN]
+    if not runs:
+        why = "; ".join(sorted({s.reason.split(" (")[0] for s in segs}))
+        raise LogError(f"no segment the observers can run on (every stretch skipped: {why})", source=str(log))
+    meas = {s.index: segment_measurements(frame, s, cmap.measured) for s in runs}
+    return ReplayLog(path=log, name=log_name(log), column_map=cmap, frame=frame, segments=segs,
+                     measurements=meas)
+
+
+def stitched_offsets(rl: ReplayLog) -> dict[int, float]:
+    """Time shift [s] per run segment that cuts the skipped spans out of the scoring axis (module doc)."""
+    h = float(np.median(np.diff(rl.frame["t_s"].to_numpy()))) if len(rl.frame) > 1 else 1.0
+    offsets: dict[int, float] = {}
+    end = -math.inf
+    for s in rl.run_segments:
+        m = rl.measurements[s.index]
+        t0 = s.t_start_s
+        start = t0 if not offsets else end + 2.0 * h
+        offsets[s.index] = start - t0
+        end = max(float(m["t_s"].iloc[-1]), s.t_end_s) + offsets[s.index]
+    return offsets
+
+
+def _rank(status: str) -> int:
+    """Which status of one observer over several segments is reported: failure > ok > skipped."""
+    return 0 if status.startswith("skipped") else 1 if status.startswith("ok") else 2
+
+
+def merge_runs(per_segment: list[tuple[int, dict[str, Any]]]) -> dict[str, Any]:
+    """One ``ObserverRun`` per observer over all run segments.
+
+    The first failure (``diverged``, ``error: …``) wins (naming its segment when there are several);
+    otherwise ``ok`` if the observer ran on any segment (``skipped`` on another only when a channel is
+    empty there); the cost per step is averaged over the steps it ran; the step counts add up.
+    """
+    merged: dict[str, Any] = {}
+    for seg_index, runs in per_segment:
+        for name, r in runs.items():
+            if _rank(str(r.status)) == 2 and len(per_segment) > 1:
+                r = replace(r, status=f"{r.status} (segment {seg_index})")
+            old = merged.get(name)
+            if old is None:
+                merged[name] = r
+                continue
+            n_old, n_new = old.n_steps or 0, r.n_steps or 0
+            cost = old.us_per_step if n_new == 0 else r.us_per_step if n_old == 0 else (
+                (old.us_per_step * n_old + r.us_per_step * n_new) / (n_old + n_new))
+            best = r if _rank(str(r.status)) > _rank(str(old.status)) else old
+            merged[name] = replace(best, us_per_step=cost, n_steps=n_old + n_new)
+    return merged
+
+
+def _run_dict(run: Any) -> dict[str, Any]:
+    out = {k: getattr(run, k, None) for k in ("status", "us_per_step", "certified", "design_reason",
+                                              "design_status", "n_steps", "detail")}
+    if isinstance(out["us_per_step"], float) and not math.isfinite(out["us_per_step"]):
+        out["us_per_step"] = None
+    return out
+
+
+def _observer_table(names: list[str]) -> list[dict[str, Any]]:
+    from observers.registry import observer_info
+
+    info = {i["name"]: i for i in observer_info()}
+    return [{k: v for k, v in info.get(n, {"name": n}).items() if k in ("name", "citation", "states", "inputs")}
+            for n in names]
+
+
+def _description(rl: ReplayLog) -> str:
+    runs = rl.run_segments
+    skipped = [s for s in rl.segments if s.status != RUN]
+    text = (f"Replay of the recorded log {rl.path.name} (column map {rl.column_map.name}): "
+            f"{len(runs)} segment(s) run, {sum(s.duration_s for s in runs):.1f} s scored")
+    if skipped:
+        parts = [f"{s.t_start_s:.2f}–{s.t_end_s:.2f} s {s.reason}" for s in skipped[:20]]
+        more = f"; … {len(skipped) - 20} more in segments.csv" if len(skipped) > 20 else ""
+        text += f"; {len(skipped)} skipped: " + "; ".join(parts) + more
+    else:
+        text += "; nothing skipped"
+    resampled = [s for s in runs if s.resampled]
+    if resampled:
+        text += f"; {len(resampled)} segment(s) resampled onto a uniform grid (nearest previous sample)"
+    return text + "."
+
+
+def replay(
+    log: Path,
+    *,
+    vehicle: str | Path = "ferrari_250lm",
+    columns: str | Path | None = None,
+    observers: list[str] | None = None,
+    out: Path = Path("reports/replay"),
+    progress: Progress | None = None,
+) -> Path:
+    """Run observers on a recorded log and score them against its reference channels.
+
+    Parameters
+    ----------
+    log : Path
+        CSV, gzip CSV, Parquet or MATLAB .mat log.
+    vehicle : str or Path
+        Vehicle set name (``harness/vehicles``) or YAML path; the observers' model parameters.
+    columns : str or Path, optional
+        Column map: a shipped name (``"revs_250lm"``) or a YAML path. None: the log's columns must
+        already be canonical names (identity map).
+    observers : list of str, optional
+        Observer names (default: every registered observer; those needing signals the log lacks
+        are reported as skipped).
+    out : Path
+        Output folder, replaced atomically when complete.
+    progress : callable, optional
+        Called with one line per step.
+
+    Returns
+    -------
+    Path
+        ``out`` (resolved).
+    """
+    from harness.estimate import run_observers
+    from harness.report import build_report
+    from harness.scoring import score
+    from observers.registry import available_observers
+
+    say = progress or (lambda _msg: None)
+    t_wall = time.perf_counter()
+    veh: VehicleParams = load_vehicle(vehicle)
+    rl = prepare_log(Path(log), columns)
+    say(f"{rl.name}: {len(rl.frame)} rows, {len(rl.run_segments)} run segment(s), "
+        f"{len(rl.segments) - len(rl.run_segments)} skipped")
+
+    est_parts: list[pd.DataFrame] = []
+    meas_parts: list[pd.DataFrame] = []
+    per_segment: list[tuple[int, dict[str, Any]]] = []
+    names = list(observers) if observers else available_observers()
+    offsets = stitched_offsets(rl)
+    stitched_est: list[pd.DataFrame] = []
+    for s in rl.run_segments:
+        m = rl.measurements[s.index]
+        say(f"segment {s.index}: {s.t_start_s:.2f}–{s.t_end_s:.2f} s, {len(m)} steps")
+        est, runs = run_observers(m, veh, names)
+        est = est.copy()
+        est["segment"] = s.index
+        est_parts.append(est)
+        shifted = est.copy()
+        shifted["t_s"] = shifted["t_s"] + offsets[s.index]
+        stitched_est.append(shifted)
+        meas_parts.append(m.assign(segment=s.index))
+        per_segment.append((s.index, dict(runs)))
+    runs_all = merge_runs(per_segment)
+    estimates = pd.concat(est_parts, ignore_index=True)
+
+    ref = list(rl.column_map.reference)
+    seg_of_row = np.full(len(rl.frame), -1, dtype=np.int64)
+    for s in rl.segments:
+        seg_of_row[s.i0:s.i1] = s.index if s.status == RUN else -1
+    truth = rl.frame[["t_s", *ref]].copy()
+    truth["segment"] = seg_of_row
+    scoring_parts = []
+    for s in rl.run_segments:
+        part = truth.iloc[s.i0:s.i1].copy()
+        part["t_s"] = part["t_s"] + offsets[s.index]
+        scoring_parts.append(part)
+    scoring_truth = pd.concat(scoring_parts, ignore_index=True)
+    metrics = score(scoring_truth, pd.concat(stitched_est, ignore_index=True), scenario=rl.name,
+                    runs=runs_all, mass_kg=veh.mass_kg)
+
+    out = Path(out)
+    with atomic_output_dir(out) as tmp:
+        sub = tmp / rl.name
+        sub.mkdir()
+        write_csv(truth, sub / "truth.csv")
+        write_csv(pd.concat(meas_parts, ignore_index=True), sub / "measurements.csv")
+        write_csv(estimates, sub / "estimates.csv")
+        write_csv(segments_frame(rl.segments), sub / "segments.csv")
+        events = [{"t_s": s.t_start_s, "label": f"skipped: {s.reason.split(' (')[0]}"}
+                  for s in rl.segments if s.status != RUN]
+        write_json(events, sub / "events.json")
+        description = _description(rl)
+        info = {"name": rl.name, "kind": "replay", "description": description, "vehicle": veh.name,
+                "duration_s": float(rl.frame["t_s"].iloc[-1] - rl.frame["t_s"].iloc[0]), "tags": ["replay"]}
+        write_json(info, sub / "scenario.json")
+        write_csv(metrics, tmp / "metrics.csv")
+        run_json = {
+            "command": "replay",
+            "log": str(Path(log).resolve()),
+            "column_map": rl.column_map.to_dict(),
+            "vehicle": veh.name,
+            "vehicle_path": veh.path,
+            "observers": _observer_table(list(runs_all)),
+            "observer_runs": {rl.name: {k: _run_dict(v) for k, v in runs_all.items()}},
+            "scenarios": [{"name": rl.name, "kind": "replay", "status": "ok", "description": description,
+                           "vehicle": veh.name, "tags": ["replay"], "duration_s": info["duration_s"],
+                           "rows": len(rl.frame), "render": {"reason": "recorded log: no rendered frames"},
+                           "segments": [s.to_dict() for s in rl.segments]}],
+            "skipped_segments": [{"t_start_s": s.t_start_s, "t_end_s": s.t_end_s, "reason": s.reason}
+                                 for s in rl.segments if s.status != RUN],
+            "scoring": "run segments on a stitched time axis (skipped spans cut out); files keep log times",
+            "versions": versions(),
+            "git_revision": git_revision(),
+            "wall_s": round(time.perf_counter() - t_wall, 3),
+        }
+        write_json(run_json, tmp / "run.json")
+        build_report(tmp)
+    say(f"report: {out.resolve() / 'index.html'}")
+    return out.resolve()
