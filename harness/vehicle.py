@@ -47,6 +47,7 @@ class Tires:
     radial_damping_Nspm: float
     relaxation_length_m: float  # first-order lag of slip, time constant sigma/|vx|
     load_sensitivity: float  # peak mu falls by this fraction per 100 % load above static
+    grip: float = 1.0  # peak force / (road mu * Fz): 1.0 road tires; racing tires reach ~1.3 on dry asphalt
 
 
 @dataclass(frozen=True)
@@ -194,6 +195,7 @@ def parse_vehicle(data: dict[str, Any], source: str) -> VehicleParams:
         radial_damping_Nspm=t.number("radial_damping_Nspm", 300.0, lo=0.0, hi=1e5),
         relaxation_length_m=t.number("relaxation_length_m", 0.3, lo=0.0, hi=3.0),
         load_sensitivity=t.number("load_sensitivity", 0.0, lo=0.0, hi=0.5),
+        grip=t.number("grip", 1.0, lo=0.3, hi=2.0),
     )
     t.done()
     d = f.sub("drivetrain")
