@@ -7,7 +7,8 @@ Each step (shared/notes/mujoco-car-and-tires.md, sections 4.2 and 7)::
     driver                        steering command (profile or path follower), rate limit, Ackermann;
                                   longitudinal demand (PI / brake / time gap) -> wheel torques
     tires (per wheel)             contact point, radial-spring F_z, slips, relaxation, mu(x, y, t),
-                                  MF combined slip -> xfrc_applied at the contact patch
+                                  MF combined slip with peak grip * mu * F_z -> xfrc_applied at the
+                                  contact patch
     log                           state at t_k into the preallocated row k
     mj_step2                      forces -> accelerations (accelerometer) -> integrate to t_k+1
 
@@ -81,7 +82,7 @@ N_RAW = len(RAW_COLUMNS)
 # Float parameters (par) and integer parameters (ip) of the loop.
 (P_DT, P_L, P_TRACK, P_ACK, P_DMAX, P_DRATE, P_R, P_KT, P_CT, P_SIGMA, P_LS, P_MASS, P_TDRIVE, P_TBRAKE,
  P_MU0, P_DS, P_LOOK, P_PREVIEW, P_GAIN, P_OFFSET, P_KUS, P_BRAKE_T0, P_BRAKE_DEC, P_GAP, P_STANDSTILL,
- P_BUMPER, P_LEAD_HALF, P_HCG, N_PAR) = range(29)
+ P_BUMPER, P_LEAD_HALF, P_HCG, P_GRIP, N_PAR) = range(30)
 (I_STEER_MODE, I_SPEED_MODE, I_CHASSIS, I_HAS_LEAD, I_ACC, I_WHEEL, I_HEAD, I_SPIN, I_STEERQ, I_STEERA,
  I_TORQUE) = (0, 1, 2, 3, 4, 5, 9, 13, 17, 19, 21)
 N_IP = 25
@@ -238,7 +239,8 @@ def _run(step1: Any, step2: Any, m_ptr: int, d_ptr: int, k0: int, k1: int, par: 
             alpha = relax_kernel(st[S_ALPHA + i], -math.atan(vyw / vxa), vxw, par[P_SIGMA], dt)
             st[S_KAPPA + i], st[S_ALPHA + i] = kappa, alpha
             mu = mu_at(par[P_MU0], verts, meta, px, py, t)
-            fx, fy = _combined(alpha, kappa, fz, mu, shape[i], fz0[i], par[P_LS])
+            # The tire's grip multiplies the road's mu in the peak only (logged mu stays the road's).
+            fx, fy = _combined(alpha, kappa, fz, mu * par[P_GRIP], shape[i], fz0[i], par[P_LS])
             if not (math.isfinite(fx) and math.isfinite(fy) and math.isfinite(fz)):
                 return k, 6  # MuJoCo would silently reset the state on a NaN force
             Fx = fx * exx + fy * eyx
@@ -410,7 +412,7 @@ def simulate(scenario: Any, vehicle: VehicleParams | str | None = None, seed: in
     par[P_DMAX] = v.steering.max_road_wheel_angle_rad
     par[P_DRATE] = MAX_HANDWHEEL_RATE_RADPS / v.steering.ratio
     par[P_R], par[P_KT], par[P_CT] = v.wheel_radius_m, v.tires.radial_stiffness_Npm, v.tires.radial_damping_Nspm
-    par[P_SIGMA], par[P_LS] = v.tires.relaxation_length_m, v.tires.load_sensitivity
+    par[P_SIGMA], par[P_LS], par[P_GRIP] = v.tires.relaxation_length_m, v.tires.load_sensitivity, v.tires.grip
     par[P_MASS], par[P_TDRIVE], par[P_TBRAKE] = v.mass_kg, v.drivetrain.max_drive_torque_Nm, v.drivetrain.max_brake_torque_Nm
     par[P_MU0], par[P_DS], par[P_LOOK] = scenario.friction.mu_default, scenario.road.ds_m, scenario.lookahead_m
     par[P_PREVIEW], par[P_GAIN], par[P_OFFSET] = drv.steer.preview_s, drv.steer.gain, drv.steer.lane_offset_m

@@ -6,8 +6,10 @@ Pure slip (Pacejka, *Tire and Vehicle Dynamics*, 3rd ed., eq. 4.49)::
 
 with D = μ_eff F_z. When the road friction μ changes only the PEAK scales: B → B/μ and D = μ F_z, so
 the initial slope B·C·D = B·C·F_z (the cornering / longitudinal slip stiffness) is unchanged and the
-peak slip moves to μ times its dry value. An optional load sensitivity lowers μ_eff = μ (1 − λ ΔF_z/F_z0)
-above the static load F_z0.
+peak slip moves to μ times its dry value. The tire's ``grip`` (``VehicleParams.tires.grip``, peak force
+per unit of road μ·F_z: 1 for road tires, ~1.3 for racing slicks) enters exactly like μ: the kernels
+receive μ_eff = grip·μ_road, so D = grip·μ·F_z and B·C·D stays independent of both. An optional load
+sensitivity lowers μ_eff = μ (1 − λ ΔF_z/F_z0) above the static load F_z0.
 
 Combined slip uses the similarity method on the theoretical slips σ_x = κ/(1+κ), σ_y = tan α/(1+κ)
 (Pacejka sec. 4.3.2): each is normalised by its pure-slip peak slip, and the resultant normalised slip
@@ -177,7 +179,7 @@ def relax_reference(lagged: np.ndarray, kinematic: np.ndarray, vx: np.ndarray, r
 
 def combined_slip_forces(tire: AxleTire, alpha_rad: np.ndarray, kappa: np.ndarray, fz_N: np.ndarray,
                          mu: np.ndarray | float = 1.0, *, fz_static_N: float | None = None,
-                         load_sensitivity: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+                         load_sensitivity: float = 0.0, grip: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Steady-state (F_x, F_y) [N] of one axle's tire for arrays of slip angle, slip ratio and load.
 
     Parameters
@@ -190,6 +192,9 @@ def combined_slip_forces(tire: AxleTire, alpha_rad: np.ndarray, kappa: np.ndarra
         Road friction under the tire.
     fz_static_N, load_sensitivity :
         Static wheel load and the peak-μ drop per 100 % overload (``VehicleParams.tires.load_sensitivity``).
+    grip : float
+        The tire's peak force per unit of road μ·F_z (``VehicleParams.tires.grip``); scales the peak
+        like μ, never the slip stiffness.
 
     Returns
     -------
@@ -202,5 +207,5 @@ def combined_slip_forces(tire: AxleTire, alpha_rad: np.ndarray, kappa: np.ndarra
     fz0 = np.full(n, fz_static_N if fz_static_N is not None else 1.0)
     fx, fy = np.empty(n), np.empty(n)
     tire_forces_kernel(np.ascontiguousarray(a), np.ascontiguousarray(k), np.ascontiguousarray(fz),
-                       np.ascontiguousarray(m), shape, fz0, float(load_sensitivity if fz_static_N else 0.0), fx, fy)
+                       np.ascontiguousarray(m * grip), shape, fz0, float(load_sensitivity if fz_static_N else 0.0), fx, fy)
     return fx, fy

@@ -5,29 +5,69 @@ State ``x = (v_y, r)``; inputs ``delta`` and ``v_x`` drive the model, ``r`` (gyr
 
 * ``kf_bicycle``: linear speed-scheduled model (3.17), exact ZOH per step (closed form,
   :func:`observers.bicycle.expm2_zoh`), ``a_y = (F_yf + F_yr)/m = C(v_x) x + D delta``.
-* ``ekf_bicycle`` / ``ukf_bicycle``: nonlinear axle forces by the Magic Formula
-  ``F = D sin(C atan(B a - E(B a - atan(B a))))`` with the vehicle's per-axle shape, ``D = F_z`` at
-  static load and mu = 1, slip angles by the CONTRACT definitions,
-  ``m (v_y' + v_x r) = F_yf cos(delta) + F_yr``, ``I_z r' = l_f F_yf cos(delta) - l_r F_yr``;
-  RK4 with enough sub-steps for the model's stiffness.
+* ``ekf_bicycle`` / ``ukf_bicycle``: the nonlinear single-track model of
+  :mod:`observers.tire_curves` (Magic Formula axle forces with peak ``grip * mu * F_z,static``:
+  the vehicle's tire grip times the assumed road friction, option ``mu``; cornering stiffness kept).
 
 Process noise: white accelerations with spectral densities ``q = std^2`` [(m/s^2)^2/Hz,
 (rad/s^2)^2/Hz], discretised as ``Q_d = diag(q) h``. Numerical robustness (named choices): Joseph-form
 updates, covariances kept symmetric by construction, the 2x2 correlation clipped to
-``|p12| <= sqrt(p11 p22)``, and (UKF) sigma points from an eigendecomposition with eigenvalues
-clipped at a floor, so no Cholesky factorisation can fail. Derived outputs ``beta``, ``alpha_f``,
-``alpha_r`` carry first-order propagated variances.
+``|p12| <= sqrt(p11 p22)``, and (UKF) sigma points from a closed-form eigendecomposition with
+eigenvalues clipped at a floor, so no Cholesky factorisation can fail. Derived outputs ``beta``,
+``alpha_f``, ``alpha_r`` carry first-order propagated variances.
+
+Robustness of the nonlinear filters on real data (a tire model is never exactly the car's):
+
+* **State constraints by estimate projection** (D. Simon, "Kalman filtering with state constraints:
+  a survey of linear and nonlinear algorithms", IET Control Theory Appl. 4(8):1303-1318, 2010):
+  after every step the estimate is projected onto the physically plausible box
+  ``|v_y| <= tan(beta_max) v_x``, ``|r| <= (1 + margin) min(v_x tan(delta_max)/L, grip mu g / v_x)``
+  (kinematic turning limit at low speed, friction limit at high speed) with the weight
+  ``W = P^-1`` (the maximum-probability projection: a clipped ``v_y`` drags ``r`` along its
+  correlation). ``P`` is kept, a conservative choice (projecting onto a convex set that holds the
+  true state never moves the estimate away from it), except that its diagonal is capped at the
+  squared half-widths of the box (no distribution on the box has a larger variance), which also
+  stops an unstable linearisation past the tire peak from inflating it without bound.
+* **Innovation clipping**: each scalar innovation is clipped to ``innovation_gate`` standard
+  deviations of its predicted spread ``sqrt(S)`` before the gain is applied (a simplified
+  Huber-type update; cf. Karlgaard & Schaub, "Huber-based divided difference filtering", J. Guid.
+  Control Dyn. 30(3), 2007). A persistent model-mismatch innovation (measured ``a_y`` beyond the
+  model's peak) then moves the state a bounded amount per sample instead of driving it past the
+  tire peak, where the model's slope has the wrong sign and the filter runs away. On the Revs log
+  with the tire curves capped at 1 g this clipping alone keeps both filters bounded; the box alone
+  only holds them at its edge.
+
+The EKF and UKF steps are compiled kernels (``ekf_advance``, ``ukf_advance``) on floats; their
+``py_func`` is the plain-Python twin, tested equal. numba caches each kernel per source file: after
+editing ``observers/tire_curves.py`` (or ``expm2_zoh``) delete ``observers/__pycache__/*.nbi, *.nbc``.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
+from harness.errors import InputError
+from harness.tire import jit
+from harness.vehicle import G
 from observers.base import ScalarLoopObserver
 from observers.bicycle import axle_stiffness, expm2_zoh
 from observers.registry import register
+from observers.tire_curves import (
+    M_IZ,
+    M_LF,
+    M_LR,
+    M_MASS,
+    model_array,
+    peak_scale,
+    propagate,
+    rk4,
+    single_track,
+    substeps,
+)
 
 _STATES = ("vy_mps", "yaw_rate_radps", "beta_rad", "alpha_f_rad", "alpha_r_rad")
 _OPTIONS: dict[str, float] = {
@@ -39,9 +79,26 @@ _OPTIONS: dict[str, float] = {
     "init_std_r_radps": 0.1,
     "vx_min_mps": 2.0,              # the models are singular at v_x = 0
 }
+_NONLINEAR_OPTIONS: dict[str, float] = {
+    **_OPTIONS,
+    "mu": 1.0,                      # road friction the tire curves assume (peak = grip * mu * F_z)
+    "beta_max_rad": 0.5,            # plausible set: |v_y| <= tan(beta_max) v_x
+    "constraint_margin": 0.5,       # |r| <= (1 + margin) x (kinematic / friction limit)
+    "innovation_gate": 3.0,         # innovations clipped to this many predicted std (inf: off)
+}
 _PSD_FLOOR = 1e-12
 
+# Indices of the filter parameter array of the compiled kernels.
+F_Q1, F_Q2, F_RR, F_RAY, F_GATE, F_TANB, F_RKIN, F_ALIM, N_FILT = range(9)
+_W0, _WI = 1.0 / 3.0, 1.0 / 6.0  # UKF weights, n = 2, kappa = 1: kappa/(n+kappa), 1/(2(n+kappa))
+_SIGMA_SCALE = 3.0               # n + kappa
 
+_expm2 = jit(expm2_zoh)
+
+
+# ---- scalar 2x2 filter algebra (compiled; the linear KF calls the same functions) --------------------
+
+@jit
 def _psd2(p11: float, p12: float, p22: float) -> tuple[float, float, float]:
     """Keep a symmetric 2x2 covariance positive semidefinite (diagonal floor, correlation clip)."""
     p11 = p11 if p11 > _PSD_FLOOR else _PSD_FLOOR
@@ -54,12 +111,18 @@ def _psd2(p11: float, p12: float, p22: float) -> tuple[float, float, float]:
     return p11, p12, p22
 
 
+@jit
 def _joseph(x1: float, x2: float, p11: float, p12: float, p22: float, h1: float, h2: float,
-            resid: float, R: float) -> tuple[float, float, float, float, float]:
-    """Scalar measurement update ``z = h1 x1 + h2 x2 + v`` in Joseph form; returns x and P."""
+            resid: float, R: float, gate: float) -> tuple[float, float, float, float, float]:
+    """Scalar update ``z = h1 x1 + h2 x2 + v`` in Joseph form, innovation clipped to ``gate sqrt(S)``."""
     ph1 = p11 * h1 + p12 * h2
     ph2 = p12 * h1 + p22 * h2
     S = h1 * ph1 + h2 * ph2 + R
+    lim = gate * math.sqrt(S)
+    if resid > lim:
+        resid = lim
+    elif resid < -lim:
+        resid = -lim
     k1, k2 = ph1 / S, ph2 / S
     a11, a12, a21, a22 = 1.0 - k1 * h1, -k1 * h2, -k2 * h1, 1.0 - k2 * h2
     m11, m12 = a11 * p11 + a12 * p12, a11 * p12 + a12 * p22
@@ -71,12 +134,163 @@ def _joseph(x1: float, x2: float, p11: float, p12: float, p22: float, h1: float,
     return x1 + k1 * resid, x2 + k2 * resid, n11, n12, n22
 
 
+@jit
 def _propagate_cov(E: tuple[float, float, float, float], p11: float, p12: float, p22: float,
                    q1: float, q2: float) -> tuple[float, float, float]:
     """``E P E^T + diag(q1, q2)``."""
     m11, m12 = E[0] * p11 + E[1] * p12, E[0] * p12 + E[1] * p22
     m21, m22 = E[2] * p11 + E[3] * p12, E[2] * p12 + E[3] * p22
     return _psd2(m11 * E[0] + m12 * E[1] + q1, m11 * E[2] + m12 * E[3], m21 * E[2] + m22 * E[3] + q2)
+
+
+# ---- state constraints (Simon 2010, estimate projection) ------------------------------------------
+
+@jit
+def plausible_box(v: float, filt: np.ndarray) -> tuple[float, float]:
+    """Half-widths ``(v_y,max [m/s], r_max [rad/s])`` of the plausible set at speed ``v`` > 0."""
+    return filt[F_TANB] * v, min(filt[F_RKIN] * v, filt[F_ALIM] / v)
+
+
+@jit
+def project_box(vy: float, r: float, p11: float, p12: float, p22: float, a: float,
+                b: float) -> tuple[float, float]:
+    """``argmin (x - x_hat)^T P^-1 (x - x_hat)`` over ``|v_y| <= a``, ``|r| <= b``.
+
+    The minimiser of a convex quadratic over a box lies inside, in the relative interior of a face
+    (the unconstrained projection onto that face's line) or at a corner: every feasible candidate is
+    evaluated and the cheapest kept. ``P`` must be positive definite (``_psd2`` guarantees it).
+    """
+    if -a <= vy <= a and -b <= r <= b:
+        return vy, r
+    slack = 1e-12 * (a + b)
+    best, bx, by = math.inf, vy, r
+    for k in range(8):
+        if k < 2:       # face v_y = +-a; r moves along the correlation
+            cx = a if k == 0 else -a
+            cy = r + p12 / p11 * (cx - vy)
+        elif k < 4:     # face r = +-b
+            cy = b if k == 2 else -b
+            cx = vy + p12 / p22 * (cy - r)
+        else:           # corners
+            cx = a if k % 2 == 0 else -a
+            cy = b if k < 6 else -b
+        if abs(cx) > a + slack or abs(cy) > b + slack:
+            continue
+        dx, dy = cx - vy, cy - r
+        cost = p22 * dx * dx - 2.0 * p12 * dx * dy + p11 * dy * dy  # det(P) x Mahalanobis^2
+        if cost < best:
+            best, bx, by = cost, cx, cy
+    return min(max(bx, -a), a), min(max(by, -b), b)
+
+
+@jit
+def _constrain(vy: float, r: float, p11: float, p12: float, p22: float, v: float,
+               filt: np.ndarray) -> tuple[float, float, float, float, float]:
+    """Project the estimate onto the plausible box and cap the variances at its squared half-widths."""
+    a, b = plausible_box(v, filt)
+    vy, r = project_box(vy, r, p11, p12, p22, a, b)
+    # Capping a diagonal entry scales its row and column (a congruence): the correlation is kept.
+    if p11 > a * a:
+        p12 *= a / math.sqrt(p11)
+        p11 = a * a
+    if p22 > b * b:
+        p12 *= b / math.sqrt(p22)
+        p22 = b * b
+    return vy, r, p11, p12, p22
+
+
+# ---- compiled filter steps -------------------------------------------------------------------------
+
+@jit
+def ekf_advance(vy: float, r: float, p11: float, p12: float, p22: float, delta: float, v: float, h: float,
+                r_meas: float, ay_meas: float, fresh_r: bool, fresh_ay: bool, model: np.ndarray,
+                filt: np.ndarray) -> tuple[float, float, float, float, float]:
+    """One EKF step: predict over ``h`` [s] (RK4 mean, exact ZOH of the Jacobian per sub-step for P),
+    then the gyro and accelerometer updates that arrived, then the constraints. Returns ``(x, P)``."""
+    lf, lr, iz, m = model[M_LF], model[M_LR], model[M_IZ], model[M_MASS]
+    if h > 0.0:
+        n = substeps(h, v, model)
+        hs = h / n
+        for _ in range(n):
+            _, _, _, dff, dfr, kf, kr, cd = single_track(vy, r, delta, v, model)
+            j11 = (cd * dff * kf + dfr * kr) / m
+            j12 = (cd * dff * lf * kf - dfr * lr * kr) / m - v
+            j21 = (lf * cd * dff * kf - lr * dfr * kr) / iz
+            j22 = (lf * lf * cd * dff * kf + lr * lr * dfr * kr) / iz
+            E, _ = _expm2(j11, j12, j21, j22, hs)
+            p11, p12, p22 = _propagate_cov(E, p11, p12, p22, filt[F_Q1] * hs, filt[F_Q2] * hs)
+            vy, r = rk4(vy, r, delta, v, hs, model)
+    if fresh_r:
+        vy, r, p11, p12, p22 = _joseph(vy, r, p11, p12, p22, 0.0, 1.0, r_meas - r, filt[F_RR], filt[F_GATE])
+    if fresh_ay:
+        ay, _, _, dff, dfr, kf, kr, cd = single_track(vy, r, delta, v, model)
+        h1 = (cd * dff * kf + dfr * kr) / m
+        h2 = (cd * dff * lf * kf - dfr * lr * kr) / m
+        vy, r, p11, p12, p22 = _joseph(vy, r, p11, p12, p22, h1, h2, ay_meas - ay, filt[F_RAY], filt[F_GATE])
+    return _constrain(vy, r, p11, p12, p22, v, filt)
+
+
+@jit
+def sigma_columns(p11: float, p12: float, p22: float) -> tuple[float, float, float, float]:
+    """Columns ``(s1, s2)`` of ``sqrt((n + kappa) P)`` from the closed-form eigendecomposition of the
+    2x2 ``P`` (eigenvalues clipped at a floor); sigma points are ``x``, ``x +- s1``, ``x +- s2``."""
+    mid = 0.5 * (p11 + p22)
+    rad = math.sqrt(0.25 * (p11 - p22) * (p11 - p22) + p12 * p12)
+    l1, l2 = mid + rad, mid - rad
+    floor = _PSD_FLOOR + 1e-12 * max(l1, 0.0)
+    l1, l2 = max(l1, floor), max(l2, floor)
+    th = 0.5 * math.atan2(2.0 * p12, p11 - p22)
+    c, s = math.cos(th), math.sin(th)
+    a1, a2 = math.sqrt(_SIGMA_SCALE * l1), math.sqrt(_SIGMA_SCALE * l2)
+    return a1 * c, a1 * s, -a2 * s, a2 * c
+
+
+@jit
+def ukf_advance(vy: float, r: float, p11: float, p12: float, p22: float, delta: float, v: float, h: float,
+                r_meas: float, ay_meas: float, fresh_r: bool, fresh_ay: bool, model: np.ndarray,
+                filt: np.ndarray) -> tuple[float, float, float, float, float]:
+    """One UKF step (5 sigma points, kappa = 1): sigma-point prediction through the RK4 model, the gyro
+    update (linear: exact scalar update), the accelerometer update from fresh sigma points, then the
+    constraints. Sequential updates are exact here because the two sensor noises are independent."""
+    if h > 0.0:
+        s1x, s1y, s2x, s2y = sigma_columns(p11, p12, p22)
+        x0, y0 = propagate(vy, r, delta, v, h, model)
+        x1, y1 = propagate(vy + s1x, r + s1y, delta, v, h, model)
+        x2, y2 = propagate(vy - s1x, r - s1y, delta, v, h, model)
+        x3, y3 = propagate(vy + s2x, r + s2y, delta, v, h, model)
+        x4, y4 = propagate(vy - s2x, r - s2y, delta, v, h, model)
+        vy = _W0 * x0 + _WI * (x1 + x2 + x3 + x4)
+        r = _W0 * y0 + _WI * (y1 + y2 + y3 + y4)
+        d0x, d1x, d2x, d3x, d4x = x0 - vy, x1 - vy, x2 - vy, x3 - vy, x4 - vy
+        d0y, d1y, d2y, d3y, d4y = y0 - r, y1 - r, y2 - r, y3 - r, y4 - r
+        p11 = _W0 * d0x * d0x + _WI * (d1x * d1x + d2x * d2x + d3x * d3x + d4x * d4x) + filt[F_Q1] * h
+        p12 = _W0 * d0x * d0y + _WI * (d1x * d1y + d2x * d2y + d3x * d3y + d4x * d4y)
+        p22 = _W0 * d0y * d0y + _WI * (d1y * d1y + d2y * d2y + d3y * d3y + d4y * d4y) + filt[F_Q2] * h
+        p11, p12, p22 = _psd2(p11, p12, p22)
+    if fresh_r:
+        vy, r, p11, p12, p22 = _joseph(vy, r, p11, p12, p22, 0.0, 1.0, r_meas - r, filt[F_RR], filt[F_GATE])
+    if fresh_ay:
+        s1x, s1y, s2x, s2y = sigma_columns(p11, p12, p22)
+        z0 = single_track(vy, r, delta, v, model)[0]
+        z1 = single_track(vy + s1x, r + s1y, delta, v, model)[0]
+        z2 = single_track(vy - s1x, r - s1y, delta, v, model)[0]
+        z3 = single_track(vy + s2x, r + s2y, delta, v, model)[0]
+        z4 = single_track(vy - s2x, r - s2y, delta, v, model)[0]
+        zm = _W0 * z0 + _WI * (z1 + z2 + z3 + z4)
+        e0, e1, e2, e3, e4 = z0 - zm, z1 - zm, z2 - zm, z3 - zm, z4 - zm
+        S = _W0 * e0 * e0 + _WI * (e1 * e1 + e2 * e2 + e3 * e3 + e4 * e4) + filt[F_RAY]
+        cx = _WI * (s1x * (e1 - e2) + s2x * (e3 - e4))   # P_xz; the centre point has zero deviation
+        cy = _WI * (s1y * (e1 - e2) + s2y * (e3 - e4))
+        resid = ay_meas - zm
+        lim = filt[F_GATE] * math.sqrt(S)
+        resid = min(max(resid, -lim), lim)
+        k1, k2 = cx / S, cy / S
+        vy, r = vy + k1 * resid, r + k2 * resid
+        p11, p12, p22 = _psd2(p11 - k1 * k1 * S, p12 - k1 * k2 * S, p22 - k2 * k2 * S)
+    return _constrain(vy, r, p11, p12, p22, v, filt)
+
+
+# ---- observers -------------------------------------------------------------------------------------
 
 
 class _BicycleFilter(ScalarLoopObserver):
@@ -94,9 +308,6 @@ class _BicycleFilter(ScalarLoopObserver):
         self._q1, self._q2 = float(o["process_std_vy_mps2"]) ** 2, float(o["process_std_r_radps2"]) ** 2
         self._Rr, self._Ray = float(o["meas_std_r_radps"]) ** 2, float(o["meas_std_ay_mps2"]) ** 2
         self._vmin = float(o["vx_min_mps"])
-        tf, tr = v.tires.front, v.tires.rear
-        self._mf = (tf.By, tf.Cy, tf.Ey, v.fz_front_static_N)
-        self._mr = (tr.By, tr.Cy, tr.Ey, v.fz_rear_static_N)
 
     def _initial_state(self) -> list[float]:
         return [0.0, 0.0]
@@ -148,8 +359,8 @@ class KalmanBicycle(_BicycleFilter):
     def discrete_model(self, vx_mps: float, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(A_d, B_d, Q_d)`` of one step: (2, 2), (2,), (2, 2) arrays."""
         a11, a12, a21, a22, b1, b2 = self._continuous(max(vx_mps, self._vmin))
-        E, G = expm2_zoh(a11, a12, a21, a22, h)
-        return (np.array(E).reshape(2, 2), np.array(G).reshape(2, 2) @ np.array([b1, b2]),
+        E, G_ = expm2_zoh(a11, a12, a21, a22, h)
+        return (np.array(E).reshape(2, 2), np.array(G_).reshape(2, 2) @ np.array([b1, b2]),
                 np.diag([self._q1 * h, self._q2 * h]))
 
     def measurement_model(self, vx_mps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -176,66 +387,73 @@ class KalmanBicycle(_BicycleFilter):
         p11, p12, p22 = self._P
         if h > 0.0:
             a11, a12, a21, a22, b1, b2 = self._continuous(v)
-            E, G = expm2_zoh(a11, a12, a21, a22, h)
+            E, G_ = expm2_zoh(a11, a12, a21, a22, h)
             g1, g2 = b1 * delta, b2 * delta
-            x1, x2 = E[0] * x1 + E[1] * x2 + G[0] * g1 + G[1] * g2, E[2] * x1 + E[3] * x2 + G[2] * g1 + G[3] * g2
+            x1, x2 = E[0] * x1 + E[1] * x2 + G_[0] * g1 + G_[1] * g2, E[2] * x1 + E[3] * x2 + G_[2] * g1 + G_[3] * g2
             p11, p12, p22 = _propagate_cov(E, p11, p12, p22, self._q1 * h, self._q2 * h)
         fresh = self._fresh
         if fresh[2]:
-            x1, x2, p11, p12, p22 = _joseph(x1, x2, p11, p12, p22, 0.0, 1.0, r_meas - x2, self._Rr)
+            x1, x2, p11, p12, p22 = _joseph(x1, x2, p11, p12, p22, 0.0, 1.0, r_meas - x2, self._Rr, math.inf)
         if fresh[3]:
             c1, c2, d = self._ay_row(v)
-            x1, x2, p11, p12, p22 = _joseph(x1, x2, p11, p12, p22, c1, c2, ay_meas - c1 * x1 - c2 * x2 - d * delta,
-                                            self._Ray)
+            resid = ay_meas - c1 * x1 - c2 * x2 - d * delta
+            x1, x2, p11, p12, p22 = _joseph(x1, x2, p11, p12, p22, c1, c2, resid, self._Ray, math.inf)
         self._z = [x1, x2]
         self._P = [p11, p12, p22]
 
 
-# ---- nonlinear model -----------------------------------------------------------------------------
-
-def magic_formula(alpha: float, B: float, C: float, E: float, D: float) -> tuple[float, float]:
-    """Pure-slip lateral force and its slope: ``(F [N], dF/dalpha [N/rad])``."""
-    ba = B * alpha
-    u = ba - E * (ba - math.atan(ba))
-    phi = math.atan(u)
-    du = B - E * (B - B / (1.0 + ba * ba))
-    return D * math.sin(C * phi), D * math.cos(C * phi) * C * du / (1.0 + u * u)
-
-
 class _NonlinearBicycle(_BicycleFilter):
-    def _forces(self, vy: float, r: float, delta: float, v: float) -> tuple[float, ...]:
-        """``(ay, v_y', r', dF_f/da_f, dF_r/da_r, k_f, k_r, cos delta)`` of the nonlinear model."""
-        lf, lr = self._lf, self._lr
-        af = delta - math.atan((vy + lf * r) / v)
-        ar = -math.atan((vy - lr * r) / v)
-        ff, dff = magic_formula(af, *self._mf)
-        fr, dfr = magic_formula(ar, *self._mr)
-        cd = math.cos(delta)
-        ay = (ff * cd + fr) / self._m
-        kf = -v / (v * v + (vy + lf * r) ** 2)
-        kr = -v / (v * v + (vy - lr * r) ** 2)
-        return ay, ay - v * r, (lf * ff * cd - lr * fr) / self._iz, dff, dfr, kf, kr, cd
+    """EKF/UKF shell: options, model and filter arrays; the step is a compiled kernel."""
 
-    def _substeps(self, h: float, v: float) -> int:
-        lam = ((self._cf + self._cr) / self._m + (self._lf ** 2 * self._cf + self._lr ** 2 * self._cr) / self._iz) / v
-        return min(50, max(1, math.ceil(h * lam / 0.5)))
+    default_options = dict(_NONLINEAR_OPTIONS)
+    _kernel: Callable[..., tuple[float, float, float, float, float]]
 
-    def _rk4(self, vy: float, r: float, delta: float, v: float, h: float) -> tuple[float, float]:
-        f = self._forces
-        _, k1a, k1b, *_ = f(vy, r, delta, v)
-        _, k2a, k2b, *_ = f(vy + 0.5 * h * k1a, r + 0.5 * h * k1b, delta, v)
-        _, k3a, k3b, *_ = f(vy + 0.5 * h * k2a, r + 0.5 * h * k2b, delta, v)
-        _, k4a, k4b, *_ = f(vy + h * k3a, r + h * k3b, delta, v)
-        return (vy + h / 6.0 * (k1a + 2 * k2a + 2 * k3a + k4a), r + h / 6.0 * (k1b + 2 * k2b + 2 * k3b + k4b))
+    def _option(self, key: str, lo: float, hi: float) -> float:
+        value: Any = self.options[key]
+        if not (isinstance(value, int | float) and not isinstance(value, bool) and lo <= value <= hi):
+            raise InputError(f"must be a number in [{lo:g}, {hi:g}] (got {value!r})",
+                             field=f"observer {self.name} option {key}")
+        return float(value)
+
+    def _setup(self) -> None:
+        super()._setup()
+        v = self.vehicle
+        mu = self._option("mu", 0.05, 2.0)
+        beta_max = self._option("beta_max_rad", 0.01, 1.5)
+        margin = self._option("constraint_margin", 0.0, 10.0)
+        gate = self._option("innovation_gate", 0.5, math.inf)
+        self._model = model_array(v, mu)
+        filt = np.zeros(N_FILT)
+        filt[F_Q1], filt[F_Q2], filt[F_RR], filt[F_RAY] = self._q1, self._q2, self._Rr, self._Ray
+        filt[F_GATE] = gate
+        filt[F_TANB] = math.tan(beta_max)
+        filt[F_RKIN] = (1.0 + margin) * math.tan(v.steering.max_road_wheel_angle_rad) / v.wheelbase_m
+        filt[F_ALIM] = (1.0 + margin) * peak_scale(v, mu) * G
+        self._filt = filt
+
+    def _advance(self, t_s: float, y: list[float]) -> None:
+        h = self._tick(t_s, y)
+        delta, vx, r_meas, ay_meas = self._u
+        if delta != delta or vx != vx:
+            return
+        v = vx if vx > self._vmin else self._vmin
+        z, P, fresh = self._z, self._P, self._fresh
+        vy, r, p11, p12, p22 = self._kernel(z[0], z[1], P[0], P[1], P[2], delta, v, h, r_meas, ay_meas,
+                                            fresh[2], fresh[3], self._model, self._filt)
+        self._z = [vy, r]
+        self._P = [p11, p12, p22]
 
     def simulate_step(self, x: tuple[float, float], delta: float, vx: float, h: float) -> tuple[float, float]:
         """The filter's own mean propagation of ``x = (v_y, r)`` over ``h`` [s] (for tests)."""
-        v = max(vx, self._vmin)
-        n = self._substeps(h, v)
-        vy, r = x
-        for _ in range(n):
-            vy, r = self._rk4(vy, r, delta, v, h / n)
-        return vy, r
+        return propagate(float(x[0]), float(x[1]), float(delta), max(float(vx), self._vmin), float(h), self._model)
+
+    def model_ay(self, vy: float, r: float, delta: float, vx: float) -> float:
+        """The model's lateral acceleration at ``(v_y, r)`` [m/s^2] (the accelerometer prediction)."""
+        return single_track(float(vy), float(r), float(delta), max(float(vx), self._vmin), self._model)[0]
+
+    def plausible_box(self, vx: float) -> tuple[float, float]:
+        """Half-widths ``(v_y,max [m/s], r_max [rad/s])`` of the constraint set at ``vx`` [m/s]."""
+        return plausible_box(max(float(vx), self._vmin), self._filt)
 
 
 @register
@@ -245,37 +463,9 @@ class EKFBicycle(_NonlinearBicycle):
     name = "ekf_bicycle"
     citation = "EKF on the single-track model with Magic Formula axle forces (Pacejka, Tire and Vehicle Dynamics)"
 
-    def _advance(self, t_s: float, y: list[float]) -> None:
-        h = self._tick(t_s, y)
-        delta, vx, r_meas, ay_meas = self._u
-        if delta != delta or vx != vx:
-            return
-        v = vx if vx > self._vmin else self._vmin
-        vy, r = self._z
-        p11, p12, p22 = self._P
-        lf, lr, iz, m = self._lf, self._lr, self._iz, self._m
-        if h > 0.0:
-            n = self._substeps(h, v)
-            hs = h / n
-            for _ in range(n):
-                _, _, _, dff, dfr, kf, kr, cd = self._forces(vy, r, delta, v)
-                j11 = (cd * dff * kf + dfr * kr) / m
-                j12 = (cd * dff * lf * kf - dfr * lr * kr) / m - v
-                j21 = (lf * cd * dff * kf - lr * dfr * kr) / iz
-                j22 = (lf * lf * cd * dff * kf + lr * lr * dfr * kr) / iz
-                E, _ = expm2_zoh(j11, j12, j21, j22, hs)
-                p11, p12, p22 = _propagate_cov(E, p11, p12, p22, self._q1 * hs, self._q2 * hs)
-                vy, r = self._rk4(vy, r, delta, v, hs)
-        fresh = self._fresh
-        if fresh[2]:
-            vy, r, p11, p12, p22 = _joseph(vy, r, p11, p12, p22, 0.0, 1.0, r_meas - r, self._Rr)
-        if fresh[3]:
-            ay, _, _, dff, dfr, kf, kr, cd = self._forces(vy, r, delta, v)
-            h1 = (cd * dff * kf + dfr * kr) / m
-            h2 = (cd * dff * lf * kf - dfr * lr * kr) / m
-            vy, r, p11, p12, p22 = _joseph(vy, r, p11, p12, p22, h1, h2, ay_meas - ay, self._Ray)
-        self._z = [vy, r]
-        self._P = [p11, p12, p22]
+    def _setup(self) -> None:
+        super()._setup()
+        self._kernel = ekf_advance
 
 
 @register
@@ -285,73 +475,6 @@ class UKFBicycle(_NonlinearBicycle):
     name = "ukf_bicycle"
     citation = "UKF (Julier & Uhlmann, Proc. IEEE 92(3), 2004) on the Magic Formula single-track model"
 
-    _KAPPA = 1.0
-    _W = np.array([1.0 / 3.0, 1.0 / 6.0, 1.0 / 6.0, 1.0 / 6.0, 1.0 / 6.0])  # kappa/(n+kappa), 1/(2(n+kappa))
-
-    def _sigma(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
-        w, V = np.linalg.eigh(0.5 * (P + P.T))
-        w = np.maximum(w, _PSD_FLOOR + 1e-12 * max(float(w.max()), 0.0))
-        S = V * np.sqrt((2.0 + self._KAPPA) * w)
-        return np.vstack([x, x + S.T, x - S.T])
-
-    def _moments(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        mean = self._W @ X
-        d = X - mean
-        return mean, (d.T * self._W) @ d
-
-    def _deriv_vec(self, X: np.ndarray, delta: float, v: float) -> tuple[np.ndarray, np.ndarray]:
-        """Vectorised model over sigma points X: (k, 2) -> (state derivative (k, 2), a_y (k,))."""
-        lf, lr = self._lf, self._lr
-        vy, r = X[:, 0], X[:, 1]
-        alpha = np.stack([delta - np.arctan((vy + lf * r) / v), -np.arctan((vy - lr * r) / v)])
-        ba = self._B * alpha
-        F = self._D * np.sin(self._C * np.arctan(ba - self._E * (ba - np.arctan(ba))))
-        cd = math.cos(delta)
-        ay = (F[0] * cd + F[1]) / self._m
-        return np.column_stack([ay - v * r, (lf * cd * F[0] - lr * F[1]) / self._iz]), ay
-
-    def _propagate_vec(self, X: np.ndarray, delta: float, v: float, h: float) -> np.ndarray:
-        n = self._substeps(h, v)
-        hs = h / n
-        f = self._deriv_vec
-        for _ in range(n):
-            k1 = f(X, delta, v)[0]
-            k2 = f(X + 0.5 * hs * k1, delta, v)[0]
-            k3 = f(X + 0.5 * hs * k2, delta, v)[0]
-            k4 = f(X + hs * k3, delta, v)[0]
-            X = X + hs / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-        return X
-
     def _setup(self) -> None:
         super()._setup()
-        mf, mr = self._mf, self._mr
-        self._B, self._C, self._E, self._D = (np.array([[mf[i]], [mr[i]]]) for i in range(4))
-
-    def _advance(self, t_s: float, y: list[float]) -> None:
-        h = self._tick(t_s, y)
-        delta, vx, r_meas, ay_meas = self._u
-        if delta != delta or vx != vx:
-            return
-        v = vx if vx > self._vmin else self._vmin
-        x = np.array(self._z)
-        p11, p12, p22 = self._P
-        P = np.array([[p11, p12], [p12, p22]])
-        if h > 0.0:
-            X = self._sigma(x, P)
-            Xp = self._propagate_vec(X, delta, v, h)
-            x, P = self._moments(Xp)
-            P = P + np.diag([self._q1 * h, self._q2 * h])
-        fresh = self._fresh
-        rows = [i for i, f in ((0, fresh[2]), (1, fresh[3])) if f]
-        if rows:
-            X = self._sigma(x, P)
-            Z = np.column_stack([X[:, 1], self._deriv_vec(X, delta, v)[1]])[:, rows]
-            z_mean, Pzz = self._moments(Z)
-            Pzz = Pzz + np.diag([self._Rr, self._Ray])[np.ix_(rows, rows)]
-            Pxz = ((X - x).T * self._W) @ (Z - z_mean)
-            K = np.linalg.solve(Pzz, Pxz.T).T
-            x = x + K @ (np.array([r_meas, ay_meas])[rows] - z_mean)
-            P = P - K @ Pzz @ K.T
-        q11, q12, q22 = _psd2(float(P[0, 0]), 0.5 * float(P[0, 1] + P[1, 0]), float(P[1, 1]))
-        self._z = [float(x[0]), float(x[1])]
-        self._P = [q11, q12, q22]
+        self._kernel = ukf_advance
