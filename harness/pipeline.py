@@ -1,0 +1,491 @@
+"""The main job: simulate → emulate sensors → run observers → score → render → report.
+
+``run_suite`` writes a whole run folder (layout in CONTRACT.md, "Files a run writes") inside
+``atomic_output_dir``: nothing appears at ``out`` until everything, report included, is written.
+Each scenario is an independent task (optionally in parallel processes); its random streams come
+from one ``numpy.random.SeedSequence`` per scenario, so results do not depend on ``jobs`` or order:
+
+* without ``seed``: ``SeedSequence(scenario.seed)``;
+* with ``seed``: ``SeedSequence(seed, spawn_key=(crc32(scenario name),))`` (one suite seed, a
+  distinct stream per scenario);
+
+and ``.spawn(2)`` gives the simulation stream and the sensor stream.
+
+A scenario whose simulation diverges, or whose sensors/observers raise, is reported (its status and
+the observers' rows say so) and the suite goes on. Bad user input (unknown scenario, observer, sensor
+preset, friction spec) raises an ``InputError`` before any work starts.
+"""
+
+from __future__ import annotations
+
+import os
+
+# Offscreen rendering: the GL back-end is chosen when mujoco is first imported.
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import math  # noqa: E402
+import multiprocessing  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+import traceback  # noqa: E402
+import zlib  # noqa: E402
+from collections.abc import Iterable  # noqa: E402
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed  # noqa: E402
+from dataclasses import dataclass, field  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from harness.errors import InputError  # noqa: E402
+from harness.outdir import atomic_output_dir  # noqa: E402
+from harness.progress import Progress  # noqa: E402
+from harness.report.rundata import (  # noqa: E402
+    FLOAT_FORMAT,
+    events_list,
+    git_revision,
+    scenario_info,
+    versions,
+    write_csv,
+    write_json,
+)
+
+STAGES: tuple[str, ...] = ("simulate", "sensors", "observers", "scoring", "write", "render")
+
+
+@dataclass(frozen=True)
+class ScenarioTask:
+    """Everything one worker needs (picklable)."""
+
+    name: str
+    run_dir: Path
+    observers: tuple[str, ...]
+    seed: int | None
+    vehicle: str | None
+    friction: str | None
+    sensors: str | None
+    faults: str | None
+    log_rate_hz: float
+    render: bool
+
+
+@dataclass(frozen=True)
+class ScenarioOutcome:
+    name: str
+    metrics: pd.DataFrame
+    entry: dict[str, Any]
+    runs: dict[str, dict[str, Any]]
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def scenario_seeds(scenario_seed: int, name: str, seed: int | None) -> tuple[np.random.SeedSequence, int, int]:
+    """The scenario's SeedSequence and the integer seeds of its simulation and sensor streams."""
+    if seed is None:
+        ss = np.random.SeedSequence(int(scenario_seed))
+    else:
+        ss = np.random.SeedSequence(int(seed), spawn_key=(zlib.crc32(name.encode()),))
+    sim_ss, sensor_ss = ss.spawn(2)
+    return ss, int(sim_ss.generate_state(1)[0]), int(sensor_ss.generate_state(1)[0])
+
+
+def _prepare_scenario(name: str, vehicle: str | None, friction: str | None) -> Any:
+    from harness.scenario import load_scenario
+
+    sc = load_scenario(name)
+    if vehicle:
+        sc = sc.with_vehicle(vehicle)
+    if friction is not None:
+        sc = sc.with_friction(friction)
+    return sc
+
+
+def _sensor_config(sc: Any, sensors: str | None, faults: str | None) -> Any:
+    from harness.sensors import load_sensor_config
+
+    return load_sensor_config(sensors or sc.sensors, sc.sensor_overrides, faults)
+
+
+def _observer_run_dict(run: Any) -> dict[str, Any]:
+    keys = ("status", "us_per_step", "certified", "design_reason", "n_steps", "design_status", "detail")
+    out = {k: getattr(run, k, None) for k in keys}
+    if isinstance(out["us_per_step"], float) and not math.isfinite(out["us_per_step"]):
+        out["us_per_step"] = None
+    return out
+
+
+@dataclass(frozen=True)
+class _SkippedRun:
+    status: str
+    us_per_step: float = math.nan
+    certified: bool | None = None
+    design_reason: str = ""
+    n_steps: int = 0
+
+
+@dataclass(frozen=True, eq=False)
+class _FailedTruth:
+    """Stands in for a ``Truth`` when the simulation raised: empty, with the error as status."""
+
+    status: str
+    frame: pd.DataFrame = field(default_factory=lambda: pd.DataFrame({"t_s": np.empty(0)}))
+    qpos: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
+    model_xml: str = ""
+    events: tuple[tuple[float, str], ...] = ()
+    ok: bool = False
+
+    def at_rate(self, hz: float) -> pd.DataFrame:
+        return self.frame
+
+
+def _best_beta_observer(metrics: pd.DataFrame) -> str | None:
+    m = metrics[(metrics["state"] == "beta_rad") & metrics["status"].str.startswith("ok")
+                & metrics["rmse"].notna()]
+    if m.empty:
+        return None
+    return str(m.sort_values(["rmse", "observer"]).iloc[0]["observer"])
+
+
+@dataclass(frozen=True)
+class RenderJob:
+    """A render of one scenario, runnable in another process (picklable)."""
+
+    source: Any  # harness.render.RenderSource
+    run_dir: Path
+    name: str
+    beta: pd.DataFrame | None
+    observer: str | None
+
+
+def render_job(job: RenderJob) -> tuple[dict[str, Any], float]:
+    """Run a render job; returns the run.json ``render`` entry and the seconds it took."""
+    from harness.render import render_scenario
+
+    t = time.perf_counter()
+    result = render_scenario(job.source, job.run_dir, job.name, beta_estimates=job.beta, observer=job.observer)
+    return result.to_dict(), time.perf_counter() - t
+
+
+def run_scenario(task: ScenarioTask) -> ScenarioOutcome:
+    """Simulate, sense, estimate, score, write and (if ``task.render``) render one scenario into
+    ``task.run_dir / task.name``. Expected failures become statuses; nothing here raises for them."""
+    outcome, job = compute_scenario(task)
+    if job is not None:
+        entry, seconds = render_job(job)
+        outcome.entry["render"] = entry
+        outcome.timings["render"] = seconds
+        outcome.entry["timings_s"]["render"] = round(seconds, 4)
+    return outcome
+
+
+def compute_scenario(task: ScenarioTask) -> tuple[ScenarioOutcome, RenderJob | None]:
+    """Everything but the render; returns the render job (None if ``task.render`` is off)."""
+    from harness.estimate import run_observers
+    from harness.render import RenderSource
+    from harness.scoring import score
+    from harness.sensors import emulate
+    from harness.simulate import simulate
+
+    timings = dict.fromkeys(STAGES, 0.0)
+    folder = task.run_dir / task.name
+    folder.mkdir(parents=True, exist_ok=True)
+    sc = _prepare_scenario(task.name, task.vehicle, task.friction)
+    veh = sc.vehicle_params()
+    ss, sim_seed, sensor_seed = scenario_seeds(sc.seed, task.name, task.seed)
+    entry: dict[str, Any] = {
+        "name": task.name, "description": sc.description, "tags": list(sc.tags), "vehicle": veh.name,
+        "duration_s": sc.duration_s, "sensors": task.sensors or sc.sensors,
+        "seed": task.seed if task.seed is not None else sc.seed,
+        "entropy": str(ss.entropy), "spawn_key": list(ss.spawn_key),
+        "simulation_seed": sim_seed, "sensor_seed": sensor_seed, "status": "ok",
+    }
+
+    t = time.perf_counter()
+    try:
+        truth = simulate(sc, seed=sim_seed)
+    except InputError:
+        raise
+    except Exception as e:  # a crash of one scenario is reported with its traceback; the suite goes on
+        truth = _FailedTruth(status=f"error: {type(e).__name__}: {e}")
+        entry["traceback"] = traceback.format_exc()
+    timings["simulate"] = time.perf_counter() - t
+    entry["status"] = str(truth.status)
+    entry["sim_steps"] = len(truth.frame)
+
+    t = time.perf_counter()
+    write_csv(truth.at_rate(task.log_rate_hz), folder / "truth.csv")
+    write_json(events_list(truth.events), folder / "events.json")
+    write_json(scenario_info(sc, veh), folder / "scenario.json")
+    timings["write"] += time.perf_counter() - t
+
+    runs: dict[str, Any]
+    estimates = pd.DataFrame(columns=["t_s", "observer", "state", "value", "lo", "hi", "var"])
+    if not truth.ok:
+        runs = {o: _SkippedRun(status=f"skipped: simulation {truth.status}") for o in task.observers}
+    else:
+        try:
+            t = time.perf_counter()
+            cfg = _sensor_config(sc, task.sensors, task.faults)
+            meas = emulate(truth.frame, veh, cfg, sensor_seed, outages=sc.outages, lane_gaps=sc.lane_gaps)
+            timings["sensors"] = time.perf_counter() - t
+            t = time.perf_counter()
+            write_csv(meas.frame, folder / "measurements.csv")
+            timings["write"] += time.perf_counter() - t
+            t = time.perf_counter()
+            estimates, runs = run_observers(meas.frame, veh, list(task.observers))
+            timings["observers"] = time.perf_counter() - t
+        except InputError:
+            raise
+        except Exception as e:  # one broken stage must not stop the suite
+            entry["status"] = f"error: {type(e).__name__}: {e}"
+            entry["traceback"] = traceback.format_exc()
+            runs = {o: _SkippedRun(status=f"skipped: {entry['status']}") for o in task.observers}
+
+    t = time.perf_counter()
+    metrics = score(truth.frame, estimates, scenario=task.name, runs=runs, mass_kg=veh.mass_kg)
+    timings["scoring"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    write_csv(estimates, folder / "estimates.csv")
+    timings["write"] += time.perf_counter() - t
+
+    entry["render"] = {"frames": [], "video": None, "reason": "rendering switched off (--no-render)"}
+    job = None
+    if task.render:
+        best = _best_beta_observer(metrics)
+        beta = None
+        if best is not None:
+            beta = estimates[(estimates["observer"] == best) & (estimates["state"] == "beta_rad")]
+            beta = beta[["t_s", "value"]].reset_index(drop=True)
+        job = RenderJob(source=RenderSource.from_truth(truth), run_dir=task.run_dir, name=task.name,
+                        beta=beta, observer=best)
+    entry["timings_s"] = {k: round(v, 4) for k, v in timings.items()}
+    outcome = ScenarioOutcome(name=task.name, metrics=metrics, entry=entry,
+                              runs={k: _observer_run_dict(v) for k, v in runs.items()}, timings=timings)
+    return outcome, job
+
+
+def _line(o: ScenarioOutcome) -> str:
+    bad = int((~o.metrics.drop_duplicates("observer")["status"].str.startswith("ok")).sum())
+    return (f"{o.name}: {o.entry['status']}, {len(o.runs)} observers"
+            f"{f' ({bad} not ok)' if bad else ''}, {sum(o.timings.values()):.1f} s")
+
+
+def _render_line(o: ScenarioOutcome) -> str:
+    r = o.entry.get("render", {})
+    if r.get("reason"):
+        return f"{o.name}: not rendered ({r['reason'][:80]})"
+    return f"{o.name}: rendered {r.get('n_rendered', 0)} frames in {o.timings.get('render', 0.0):.1f} s"
+
+
+def _pool(workers: int) -> ProcessPoolExecutor:
+    """Worker processes that start from a fresh interpreter (forkserver on Linux, spawn elsewhere).
+
+    Never plain fork: a process that has made an OpenGL (EGL) context, e.g. a test session that
+    rendered before, hangs its forked children when they render.
+    """
+    method = "forkserver" if sys.platform.startswith("linux") else "spawn"
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(method))
+
+
+def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress) -> Iterable[ScenarioOutcome]:
+    """Run the scenario tasks; yields outcomes as they complete (any order).
+
+    With ``jobs > 1`` each worker process runs whole scenarios, renders included. Otherwise the main
+    process simulates, senses, estimates and scores one scenario after the other while renders (the
+    slowest stage with software GL) run in two background processes, so a 2-core machine is used
+    even without ``--jobs``. The main process itself never renders (see ``_pool``).
+    """
+    if jobs > 1 and len(tasks) > 1:
+        with _pool(min(jobs, len(tasks))) as pool:
+            futures = [pool.submit(run_scenario, task) for task in tasks]
+            for fut in as_completed(futures):
+                o = fut.result()
+                progress.item(_line(o))
+                if tasks[0].render:
+                    progress.item(_render_line(o))
+                yield o
+        return
+    if not any(t.render for t in tasks):
+        for task in tasks:
+            o = run_scenario(task)
+            progress.item(_line(o))
+            yield o
+        return
+    with _pool(min(2, len(tasks))) as renderer:
+        pending: list[tuple[ScenarioOutcome, Future | None]] = []
+        for task in tasks:
+            o, job = compute_scenario(task)
+            progress.item(_line(o))
+            pending.append((o, renderer.submit(render_job, job) if job is not None else None))
+        for o, fut in pending:
+            if fut is not None:
+                entry, seconds = fut.result()
+                o.entry["render"] = entry
+                o.timings["render"] = seconds
+                o.entry["timings_s"]["render"] = round(seconds, 4)
+                progress.item(_render_line(o))
+            yield o
+
+
+def check_log_rate(hz: float, dt_s: float = 0.001) -> None:
+    """``truth.csv`` keeps every k-th simulation step: the rate must divide the simulation rate."""
+    k = 1.0 / (hz * dt_s) if hz > 0 else math.nan
+    if not (k >= 1.0 - 1e-9 and abs(k - round(k)) <= 1e-6 * k):
+        raise InputError(f"log rate {hz:g} Hz must divide the simulation rate {1.0 / dt_s:g} Hz",
+                         field="--log-rate")
+
+
+def _resolve(scenarios: list[str] | None, suite_name: str, observers: list[str] | None,
+             vehicle: str | None, friction: str | None, sensors: str | None, faults: str | None) -> tuple[list[str], list[str]]:
+    """Validate every user choice up front (raises InputError) and return scenario and observer names."""
+    from harness.scenario import suite
+    from observers.registry import available_observers
+
+    names = list(dict.fromkeys(scenarios)) if scenarios else suite(suite_name)
+    for n in names:
+        sc = _prepare_scenario(n, vehicle, friction)
+        sc.vehicle_params()
+        _sensor_config(sc, sensors, faults)
+    known = available_observers()
+    chosen = list(dict.fromkeys(observers)) if observers else list(known)
+    unknown = [o for o in chosen if o not in known]
+    if unknown:
+        raise InputError(f"unknown observer {unknown[0]!r} (available: {', '.join(known)})", field="--observer")
+    return names, chosen
+
+
+def _observer_table(names: list[str]) -> list[dict[str, Any]]:
+    from observers.registry import observer_info
+
+    info = {i["name"]: i for i in observer_info()}
+    return [{k: v for k, v in info.get(n, {"name": n}).items() if k in ("name", "citation", "states", "inputs", "family")}
+            for n in names]
+
+
+def run_suite(
+    scenarios: list[str] | None = None,
+    suite_name: str = "default",
+    observers: list[str] | None = None,
+    seed: int | None = None,
+    jobs: int = 1,
+    out: Path = Path("reports/latest"),
+    vehicle: str | None = None,
+    friction: str | None = None,
+    sensors: str | None = None,
+    faults: str | None = None,
+    log_rate_hz: float = 100.0,
+    render: bool = True,
+    progress: bool | None = None,
+) -> Path:
+    """Run a suite of scenarios × observers and write the run folder with its report.
+
+    Parameters
+    ----------
+    scenarios : scenario names (default: the scenarios of ``suite_name``).
+    suite_name : suite (tag) used when ``scenarios`` is not given.
+    observers : observer names (default: every registered observer).
+    seed : one seed for the whole suite (default: each scenario's own seed).
+    jobs : parallel worker processes (results are identical for any value).
+    out : run folder; replaced atomically when the run is complete.
+    vehicle, friction, sensors, faults : overrides applied to every scenario.
+    log_rate_hz : rate of ``truth.csv`` [Hz] (scoring uses the full simulation rate).
+    render : render MuJoCo frames and videos.
+    progress : True = tqdm bar, False = one line per scenario, None = bar only on a terminal.
+
+    Returns
+    -------
+    Path
+        The run folder (resolved).
+    """
+    from harness.report import build_report
+
+    t_wall = time.perf_counter()
+    check_log_rate(log_rate_hz)
+    names, chosen = _resolve(scenarios, suite_name, observers, vehicle, friction, sensors, faults)
+    bar = Progress(len(names) * (2 if render else 1), progress, desc="roadtruth run")
+    out = Path(out)
+    try:
+        with atomic_output_dir(out) as tmp:
+            os.chmod(tmp, 0o755)  # mkdtemp makes it private; a report folder is meant to be shared
+            tasks = [ScenarioTask(name=n, run_dir=tmp, observers=tuple(chosen), seed=seed, vehicle=vehicle,
+                                  friction=friction, sensors=sensors, faults=faults, log_rate_hz=log_rate_hz,
+                                  render=render) for n in names]
+            outcomes = {o.name: o for o in _run_tasks(tasks, jobs, bar)}
+            ordered = [outcomes[n] for n in names]
+            metrics = pd.concat([o.metrics for o in ordered], ignore_index=True)
+            write_csv(metrics, tmp / "metrics.csv")
+            totals = {k: round(sum(o.timings.get(k, 0.0) for o in ordered), 4) for k in STAGES}
+            reasons = [o.entry.get("render", {}).get("reason") for o in ordered]
+            rendered = render and any(not r for r in reasons)
+            run_json = {
+                "command": "run", "suite": suite_name if not scenarios else None, "seed": seed,
+                "vehicle": vehicle, "friction": friction, "sensors": sensors, "faults": faults,
+                "log_rate_hz": log_rate_hz, "jobs": jobs, "float_format": FLOAT_FORMAT,
+                "scenarios": [o.entry for o in ordered],
+                "observers": _observer_table(chosen),
+                "observer_runs": {o.name: o.runs for o in ordered},
+                "render": {"enabled": rendered,
+                           "reason": None if rendered else next((r for r in reasons if r), None)},
+                "versions": versions(), "git_revision": git_revision(),
+                "timings_s": totals,
+            }
+            run_json["wall_s"] = round(time.perf_counter() - t_wall, 3)
+            write_json(run_json, tmp / "run.json")
+            t = time.perf_counter()
+            build_report(tmp)
+            # The page shows run.json, so record the report's own cost and build it once more: a later
+            # ``roadtruth report DIR`` then rebuilds exactly this page.
+            run_json["timings_s"]["report"] = round(time.perf_counter() - t, 4)
+            run_json["wall_s"] = round(time.perf_counter() - t_wall, 3)
+            write_json(run_json, tmp / "run.json")
+            build_report(tmp)
+    finally:
+        bar.close()
+    bar.note(f"wrote {out.resolve()} in {time.perf_counter() - t_wall:.1f} s")
+    return out.resolve()
+
+
+def simulate_to_dir(
+    scenario: str,
+    out: Path,
+    vehicle: str | None = None,
+    friction: str | None = None,
+    seed: int | None = None,
+    log_rate_hz: float = 1000.0,
+    sensors: str | None = None,
+    faults: str | None = None,
+) -> Path:
+    """Ground truth and measurements of one scenario (``roadtruth simulate``): ``truth.csv``,
+    ``measurements.csv``, ``events.json``, ``scenario.json`` and ``run.json`` in ``out``."""
+    from harness.sensors import emulate
+    from harness.simulate import simulate
+
+    check_log_rate(log_rate_hz)
+    sc = _prepare_scenario(scenario, vehicle, friction)
+    veh = sc.vehicle_params()
+    cfg = _sensor_config(sc, sensors, faults)
+    ss, sim_seed, sensor_seed = scenario_seeds(sc.seed, sc.name, seed)
+    timings: dict[str, float] = {}
+    with atomic_output_dir(out) as tmp:
+        os.chmod(tmp, 0o755)
+        t = time.perf_counter()
+        truth = simulate(sc, seed=sim_seed)
+        timings["simulate"] = time.perf_counter() - t
+        write_csv(truth.at_rate(log_rate_hz), tmp / "truth.csv")
+        if truth.ok:
+            t = time.perf_counter()
+            meas = emulate(truth.frame, veh, cfg, sensor_seed, outages=sc.outages, lane_gaps=sc.lane_gaps)
+            timings["sensors"] = time.perf_counter() - t
+            write_csv(meas.frame, tmp / "measurements.csv")
+        write_json(events_list(truth.events), tmp / "events.json")
+        write_json(scenario_info(sc, veh), tmp / "scenario.json")
+        write_json({"command": "simulate", "scenario": sc.name, "status": str(truth.status),
+                    "vehicle": veh.name, "friction": friction, "sensors": sensors or sc.sensors,
+                    "faults": faults, "seed": seed if seed is not None else sc.seed,
+                    "entropy": str(ss.entropy), "spawn_key": list(ss.spawn_key),
+                    "simulation_seed": sim_seed, "sensor_seed": sensor_seed, "log_rate_hz": log_rate_hz,
+                    "sim_steps": len(truth.frame), "versions": versions(), "git_revision": git_revision(),
+                    "timings_s": {k: round(v, 4) for k, v in timings.items()}}, tmp / "run.json")
+    return Path(out).resolve()
+

@@ -1,0 +1,152 @@
+"""Assemble the report from sections and write ``index.html`` (self-contained: CSS, JS and plotly.js
+inlined; frames and the video sit next to it in ``frames/`` and ``videos/``)."""
+
+from __future__ import annotations
+
+import os
+import re
+import tempfile
+from dataclasses import dataclass, field
+from functools import cache
+from importlib.resources import files
+from pathlib import Path
+
+import jinja2
+
+from harness import __version__
+from harness.report.figures import PALETTE
+from harness.report.rundata import RunData
+from harness.report.sections.base import Section
+from harness.report.sections.leaderboard import LeaderboardSection
+from harness.report.sections.observers import ObserversSection
+from harness.report.sections.provenance import ProvenanceSection
+from harness.report.sections.scenarios import ScenariosSection
+from harness.report.sections.summary import SummarySection
+
+
+@dataclass(frozen=True)
+class Page:
+    """Page-wide values shared by the sections."""
+
+    colours: dict[str, str] = field(default_factory=dict)
+    #: observer -> design status ("certified", "rejected", "infeasible", "solver_failed",
+    #: "not_applicable"), from run.json's observer runs or, failing that, the ``certified`` column.
+    designs: dict[str, str] = field(default_factory=dict)
+
+
+def design_statuses(run: RunData) -> dict[str, str]:
+    """One design status per observer: the worst seen over the scenarios."""
+    from harness.report.sections.leaderboard import certification_of
+
+    order = ["solver_failed", "infeasible", "rejected", "certified", "not_applicable"]
+    seen: dict[str, list[str]] = {}
+    for per_obs in run.run.get("observer_runs", {}).values():
+        if not isinstance(per_obs, dict):
+            continue
+        for obs, r in per_obs.items():
+            if isinstance(r, dict) and r.get("design_status") in order:
+                seen.setdefault(obs, []).append(r["design_status"])
+    out = {}
+    for obs in run.observer_names:
+        if obs in seen:
+            out[obs] = min(seen[obs], key=order.index)
+        else:
+            c = certification_of(run.metrics[run.metrics["observer"] == obs])
+            out[obs] = {"certified": "certified", "not certified": "rejected"}.get(c, "not_applicable")
+    return out
+
+
+def default_sections() -> list[Section]:
+    return [SummarySection(), LeaderboardSection(), ObserversSection(), ScenariosSection(), ProvenanceSection()]
+
+
+@cache
+def _environment() -> jinja2.Environment:
+    env = jinja2.Environment(
+        loader=jinja2.PackageLoader("harness.report", "templates"),
+        autoescape=jinja2.select_autoescape(["html"], default=True),
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
+    env.filters["num"] = _format_number
+    return env
+
+
+def _format_number(v: object, digits: int = 3) -> str:
+    if v is None:
+        return "—"
+    try:
+        f = float(v)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return str(v)
+    if f != f:
+        return "—"
+    return f"{f:.{digits}g}"
+
+
+def _asset(name: str) -> str:
+    return files("harness.report").joinpath("assets", name).read_text(encoding="utf-8")
+
+
+@cache
+def plotly_js() -> str:
+    """plotly.js from the installed plotly package, made safe to inline in a <script> element."""
+    import plotly
+
+    text = (Path(plotly.__file__).parent / "package_data" / "plotly.min.js").read_text(encoding="utf-8")
+    return re.sub(r"</(script)", r"<\\/\1", text, flags=re.IGNORECASE)
+
+
+class ReportBuilder:
+    """Render sections into one page."""
+
+    def __init__(self, run: RunData, sections: list[Section] | None = None) -> None:
+        self.run = run
+        self.sections = list(sections) if sections is not None else default_sections()
+
+    def add_section(self, section: Section) -> None:
+        self.sections.append(section)
+
+    def build(self) -> str:
+        env = _environment()
+        page = Page(colours={o: PALETTE[i % len(PALETTE)] for i, o in enumerate(self.run.observer_names)},
+                    designs=design_statuses(self.run))
+        parts = []
+        for s in self.sections:
+            ctx = s.context(self.run, page)
+            parts.append({"title": s.title, "anchor": s.anchor,
+                          "html": env.get_template(s.template).render(section=s, **ctx)})
+        r = self.run.run
+        what = r.get("suite") or ", ".join(self.run.scenario_names[:4]) + (" …" if len(self.run.scenario_names) > 4 else "")
+        title = f"roadtruth {r.get('command', 'run')} — {what}"
+        return env.get_template("layout.html").render(
+            title=title, sections=parts, css=_asset("report.css"), js=_asset("report.js"),
+            plotly_js=plotly_js(), version=self.run.run.get("versions", {}).get("roadtruth", __version__),
+        )
+
+
+def render_report(run_dir: Path, sections: list[Section] | None = None) -> str:
+    """The report page of a run folder as a string."""
+    return ReportBuilder(RunData.load(Path(run_dir)), sections).build()
+
+
+def build_report(run_dir: Path) -> Path:
+    """Rebuild ``run_dir/index.html`` from the saved CSV/JSON files alone (no re-simulation).
+
+    The page is written to a temporary file in the same folder and renamed over the old one, so a
+    reader never sees a half-written page. Raises ``RunFolderError`` (an InputError) if ``run_dir``
+    is not a run folder.
+    """
+    run_dir = Path(run_dir)
+    html = render_report(run_dir)
+    fd, tmp = tempfile.mkstemp(prefix=".index.html.", suffix=".partial", dir=run_dir)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(html)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, run_dir / "index.html")
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return run_dir / "index.html"

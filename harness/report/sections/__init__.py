@@ -1,0 +1,1 @@
+"""Report sections, one per file; ``harness.report.builder.default_sections`` orders them."""

@@ -1,0 +1,98 @@
+"""Open a real run's index.html in Debian's headless Chromium: the leaderboard is there, the frames are
+rendered, plots are drawn, and the console stays clean. A screenshot is kept in test-artifacts/.
+
+Everything stays on this machine: the page is opened from a file:// URL with networking features off.
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+CHROMIUM = Path("/usr/bin/chromium")
+ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
+
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.slow,
+    pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's /usr/bin/chromium (scripts/test.sh installs it)"),
+]
+
+
+def chromium(page: Path, profile: Path, *extra: str, timeout: float = 120.0) -> subprocess.CompletedProcess[str]:
+    args = [str(CHROMIUM), "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+            "--disable-background-networking", "--disable-component-update", "--disable-sync",
+            f"--user-data-dir={profile}", "--enable-logging=stderr", "--v=0", "--hide-scrollbars",
+            "--virtual-time-budget=15000", *extra, page.resolve().as_uri()]
+    return subprocess.run(args, capture_output=True, text=True, timeout=timeout, check=False)
+
+
+def console_lines(stderr: str) -> list[str]:
+    """Console messages and uncaught errors the page produced (chromium logs them as CONSOLE lines)."""
+    return [ln for ln in stderr.splitlines() if ":CONSOLE" in ln or "Uncaught" in ln]
+
+
+def body_attrs(dom: str) -> dict[str, str]:
+    m = re.search(r"<body([^>]*)>", dom)
+    assert m, "no <body> in the dumped DOM"
+    return dict(re.findall(r'data-([a-z-]+)="([^"]*)"', m.group(1)))
+
+
+def test_console_check_catches_a_broken_page(tmp_path: Path):
+    # The detector itself must be able to fail: a page with an uncaught error is caught.
+    page = tmp_path / "broken.html"
+    page.write_text("<html><body><script>notDefinedAnywhere();</script></body></html>")
+    res = chromium(page, tmp_path / "profile", "--dump-dom")
+    assert any("Uncaught ReferenceError" in ln for ln in console_lines(res.stderr))
+
+
+@pytest.fixture(scope="module")
+def real_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from harness.pipeline import run_suite
+    from observers.registry import available_observers
+
+    names = available_observers()[:2]
+    out = tmp_path_factory.mktemp("browser") / "run"
+    return run_suite(scenarios=["step_steer"], observers=names, seed=3, out=out, render=True, progress=False)
+
+
+def test_report_opens_with_leaderboard_images_and_no_console_errors(real_run: Path, tmp_path: Path):
+    page = real_run / "index.html"
+    res = chromium(page, tmp_path / "profile", "--dump-dom", "--window-size=1400,3000")
+    assert res.returncode == 0, res.stderr[-2000:]
+    dom = res.stdout
+    assert console_lines(res.stderr) == []
+    attrs = body_attrs(dom)
+    assert attrs.get("js-errors") == "0", attrs.get("js-error-text")
+    # The leaderboard was built and coloured by the page's script.
+    assert re.search(r'<table class="leaderboard"[^>]*data-state="beta_rad"', dom)
+    assert re.search(r'<td class="cell ok"[^>]*style="background: rgb\(', dom)
+    assert re.search(r'<td class="rank"[^>]*>\d', dom)
+    # Every <img> (rendered MuJoCo frames) decoded; at least the key frames are there.
+    n_img = len(re.findall(r"<img ", dom))
+    render = (real_run / "run.json").read_text()
+    if '"enabled": true' in render:
+        assert n_img >= 3
+        assert attrs.get("images-ok") == str(n_img) and attrs.get("images-broken") == "0"
+    # plotly drew the figures in view (SVG roots exist).
+    assert int(attrs.get("plots-drawn", "0")) >= 1
+    assert "main-svg" in dom
+
+
+def test_screenshot_is_kept_as_an_artifact(real_run: Path, tmp_path: Path):
+    ARTIFACTS.mkdir(exist_ok=True)
+    shot = tmp_path / "report.png"
+    res = chromium(real_run / "index.html", tmp_path / "profile", f"--screenshot={shot}", "--window-size=1400,2600")
+    assert res.returncode == 0 and shot.is_file(), res.stderr[-2000:]
+    import cv2
+
+    img = cv2.imread(str(shot))
+    assert img is not None and img.shape[:2] == (2600, 1400)
+    # Not a blank page: the header bar is dark and the page has many distinct colours.
+    assert img[10, 10].mean() < 80
+    assert len({tuple(p) for p in img[::25, ::25].reshape(-1, 3)}) > 50
+    shutil.copy(shot, ARTIFACTS / "report.png")
