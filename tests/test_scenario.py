@@ -176,7 +176,8 @@ BAD = [
 ]
 
 
-@pytest.mark.parametrize("path, value, expected", BAD, ids=[f"{p}={v!r}"[:40] for p, v, _ in BAD])
+@pytest.mark.parametrize("path, value, expected", BAD,
+                         ids=[(f"{p}=<deleted>" if v is _DELETE else f"{p}={v!r}")[:40] for p, v, _ in BAD])
 def test_bad_scenarios_rejected(tmp_path: Path, path: str, value: Any, expected: str) -> None:
     data = copy.deepcopy(_base())
     _set(data, path, value)
