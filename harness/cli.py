@@ -152,6 +152,19 @@ def _cmd_compare(a: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_check(a: argparse.Namespace) -> int:
+    from harness.check import run_check
+
+    result = run_check(thresholds=Path(a.thresholds) if a.thresholds else None,
+                       baseline=Path(a.baseline) if a.baseline else None,
+                       junit=Path(a.junit) if a.junit else None, suite_name=a.suite, scenarios=a.scenario,
+                       observers=a.observer, seed=a.seed, jobs=a.jobs, out=Path(a.out))
+    print(result.summary())
+    if not result.passed:
+        raise CheckFailed(f"{result.n_failed} of {result.n_checks} checks failed (see {result.out})")
+    return EXIT_OK
+
+
 def _cmd_replay(a: argparse.Namespace) -> int:
     from harness.replay import replay
 
@@ -211,6 +224,18 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("dir_b")
     c.add_argument("--out", help="write compare.csv and compare.html here")
     c.set_defaults(func=_cmd_compare)
+
+    ck = sub.add_parser("check", help="the CI gate: run a suite, exit 1 on a threshold or regression breach")
+    ck.add_argument("--thresholds", help="thresholds YAML (default: the shipped harness/thresholds/ci.yaml)")
+    ck.add_argument("--baseline", help="a previous metrics.csv: fail on regressions against it")
+    ck.add_argument("--junit", help="write a JUnit XML report here")
+    ck.add_argument("--suite", default="ci", help="scenario suite (default ci)")
+    ck.add_argument("--scenario", type=_csv_list, help="comma-separated scenarios (overrides --suite)")
+    ck.add_argument("--observer", type=_csv_list, help="comma-separated observers (default: all)")
+    ck.add_argument("--seed", type=_seed, help="seed for everything random")
+    ck.add_argument("--jobs", type=_positive_int, default=1, help="parallel processes")
+    ck.add_argument("--out", default="reports/check", help="run folder (default reports/check)")
+    ck.set_defaults(func=_cmd_check)
 
     rl = sub.add_parser("replay", help="run observers on a recorded log and score them")
     rl.add_argument("log", help="CSV, CSV.gz, Parquet or .mat log")
