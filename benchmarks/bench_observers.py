@@ -32,7 +32,12 @@ def manoeuvre(vehicle, seconds: float, hz: float = 100.0) -> tuple[np.ndarray, d
         X.append(x)
         AY.append(c @ x + d * delta[k])
     X = np.array(X)
-    return t, {"delta_rad": delta, "vx_mps": vx, "ax_mps2": ax, "yaw_rate_radps": X[:, 1], "ay_mps2": np.array(AY)}
+    # Lane camera on a straight road along x (look-ahead 0.5 m): heading relative to the lane = psi.
+    psi = np.cumsum(X[:, 1]) * h
+    y = np.cumsum(vx * np.sin(psi) + X[:, 0] * np.cos(psi)) * h
+    return t, {"delta_rad": delta, "vx_mps": vx, "ax_mps2": ax, "yaw_rate_radps": X[:, 1],
+               "ay_mps2": np.array(AY), "psi_lane_rad": psi, "y_lane_m": y + 0.5 * np.sin(psi),
+               "rho_1pm": np.zeros_like(t)}
 
 
 def main() -> None:
@@ -60,6 +65,10 @@ def main() -> None:
         t0 = time.perf_counter()
         create(name, vehicle).design()
         warm = time.perf_counter() - t0
+        missing = [c for c in obs.inputs if c not in sig]
+        if missing:
+            print(f"{name:24s} skipped: the benchmark manoeuvre has no {', '.join(missing)}")
+            continue
         Y = np.column_stack([sig[c] for c in obs.inputs])
         best = np.inf
         for _ in range(3):
