@@ -31,8 +31,15 @@ def _signals(n: int = 800, h: float = 0.01) -> tuple[np.ndarray, dict[str, np.nd
     vx = 12.0 + 0.5 * t
     delta = 0.04 * np.sin(2 * np.pi * 0.5 * t)
     r = vx * delta / 2.8
-    return t, {"delta_rad": delta, "vx_mps": vx, "yaw_rate_radps": r, "ay_mps2": r * vx,
-               "ax_mps2": np.full(n, 0.5)}
+    # Lane camera (look-ahead 0.5 m) on a straight road: heading relative to the lane = yaw angle;
+    # sampled at ~33 Hz like a real camera, NaN between samples.
+    psi = np.cumsum(r) * h
+    y_lane = np.cumsum(vx * np.sin(psi)) * h + 0.5 * np.sin(psi)
+    camera = (np.arange(n) % 3) == 0
+    sig = {"delta_rad": delta, "vx_mps": vx, "yaw_rate_radps": r, "ay_mps2": r * vx,
+           "ax_mps2": np.full(n, 0.5), "psi_lane_rad": np.where(camera, psi, np.nan),
+           "y_lane_m": np.where(camera, y_lane, np.nan), "rho_1pm": np.where(camera, 0.0, np.nan)}
+    return t, sig
 
 
 def _inputs(name: str, rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
