@@ -38,32 +38,27 @@ def _csv_list(text: str) -> list[str]:
     return items
 
 
-def _positive_int(text: str) -> int:
+def _number(text: str, *, whole: bool, lo: float, hi: float, what: str) -> float:
     try:
-        v = int(text)
+        v = int(text) if whole else float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1 (got {v})")
+        raise argparse.ArgumentTypeError(f"not a {'whole number' if whole else 'number'}: {text!r}") from None
+    if not (lo <= v <= hi):
+        raise argparse.ArgumentTypeError(f"must be {what} (got {text})")
     return v
+
+
+def _positive_int(text: str) -> int:
+    return int(_number(text, whole=True, lo=1, hi=10**6, what=">= 1"))
 
 
 def _seed(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0 (got {v})")
-    return v
+    return int(_number(text, whole=True, lo=0, hi=2**63 - 1, what=">= 0"))
 
 
 def _rate(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (0.0 < v <= 100000.0):
+    v = _number(text, whole=False, lo=0.0, hi=100000.0, what="in (0, 100000] Hz")
+    if v <= 0.0:
         raise argparse.ArgumentTypeError(f"must be in (0, 100000] Hz (got {text})")
     return v
 

@@ -17,12 +17,7 @@ from observers.base import ScalarLoopObserver
 SEDAN = load_vehicle("sedan")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _design_cache(tmp_path_factory: pytest.TempPathFactory):
-    mp = pytest.MonkeyPatch()
-    mp.setenv("ROADTRUTH_CACHE", str(tmp_path_factory.mktemp("designs")))
-    yield
-    mp.undo()
+pytestmark = pytest.mark.usefixtures("isolated_design_cache")
 
 
 def _frame(n: int = 500, h: float = 0.01) -> pd.DataFrame:

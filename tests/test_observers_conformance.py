@@ -18,12 +18,7 @@ SEDAN = load_vehicle("sedan")
 NAMES = available_observers()
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _design_cache(tmp_path_factory: pytest.TempPathFactory):
-    mp = pytest.MonkeyPatch()
-    mp.setenv("ROADTRUTH_CACHE", str(tmp_path_factory.mktemp("designs")))
-    yield
-    mp.undo()
+pytestmark = pytest.mark.usefixtures("isolated_design_cache")
 
 
 def _signals(n: int = 800, h: float = 0.01) -> tuple[np.ndarray, dict[str, np.ndarray]]:

@@ -19,12 +19,7 @@ SEED_BOX = {"cf_range_Npr": (60_000.0, 90_000.0), "cr_range_Npr": (35_000.0, 65_
 H = 0.01  # the runner's step [s]
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _design_cache(tmp_path_factory: pytest.TempPathFactory):
-    mp = pytest.MonkeyPatch()
-    mp.setenv("ROADTRUTH_CACHE", str(tmp_path_factory.mktemp("designs")))
-    yield
-    mp.undo()
+pytestmark = pytest.mark.usefixtures("isolated_design_cache")
 
 
 def _own_model(vehicle, cf_fn, cr_fn, T: float = 6.0, sub: int = 20):

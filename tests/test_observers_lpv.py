@@ -11,13 +11,7 @@ from observers.lmi import DesignStatus
 from observers.lpv_wang import DesignFailed
 from observers.registry import create
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _design_cache(tmp_path_factory: pytest.TempPathFactory):
-    mp = pytest.MonkeyPatch()
-    mp.setenv("ROADTRUTH_CACHE", str(tmp_path_factory.mktemp("designs")))
-    yield
-    mp.undo()
+pytestmark = pytest.mark.usefixtures("isolated_design_cache")
 
 
 def _maneuver(vehicle, h: float = 2e-3, T: float = 6.0):

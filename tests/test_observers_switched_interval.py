@@ -20,12 +20,7 @@ NOISE_FREE = {"input_bound_rad": 0.0, "noise_bound_r_radps": 0.0, "noise_bound_p
 H_OBS = 0.01  # the runner's step [s]
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _design_cache(tmp_path_factory: pytest.TempPathFactory):
-    mp = pytest.MonkeyPatch()
-    mp.setenv("ROADTRUTH_CACHE", str(tmp_path_factory.mktemp("designs")))
-    yield
-    mp.undo()
+pytestmark = pytest.mark.usefixtures("isolated_design_cache")
 
 
 def _mode_mats(obs: SwitchedIntervalIfqir, i: int) -> dict[str, np.ndarray]:

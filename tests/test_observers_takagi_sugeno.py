@@ -21,12 +21,7 @@ SEDAN = load_vehicle("sedan")
 SEED_RANGE = {"vx_range_mps": (0.2, 17.0)}
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _design_cache(tmp_path_factory: pytest.TempPathFactory):
-    mp = pytest.MonkeyPatch()
-    mp.setenv("ROADTRUTH_CACHE", str(tmp_path_factory.mktemp("designs")))
-    yield
-    mp.undo()
+pytestmark = pytest.mark.usefixtures("isolated_design_cache")
 
 
 def own_model(vehicle, *, t_end: float = 3.0, h: float = 1e-3, sub: int = 2, vy0: float = 1.0,
