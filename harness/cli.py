@@ -160,6 +160,17 @@ def _cmd_check(a: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_stress(a: argparse.Namespace) -> int:
+    from harness.stress import parse_fault_specs, parse_friction_list, run_stress
+
+    out = run_stress(scenarios=a.scenario, suite_name=a.suite, observers=a.observer,
+                     frictions=parse_friction_list(a.friction) if a.friction else None,
+                     faults=parse_fault_specs(a.faults) if a.faults else None,
+                     seeds=a.seeds, base_seed=a.seed, jobs=a.jobs, dask=a.dask, out=Path(a.out), progress=None)
+    print(f"report: {out / 'index.html'}")
+    return EXIT_OK
+
+
 def _cmd_replay(a: argparse.Namespace) -> int:
     from harness.replay import replay
 
@@ -231,6 +242,19 @@ def build_parser() -> argparse.ArgumentParser:
     ck.add_argument("--jobs", type=_positive_int, default=1, help="parallel processes")
     ck.add_argument("--out", default="reports/check", help="run folder (default reports/check)")
     ck.set_defaults(func=_cmd_check)
+
+    st = sub.add_parser("stress", help="robustness sweeps: friction x faults x Monte Carlo seeds")
+    st.add_argument("--suite", default="stress", help="scenario suite (default stress)")
+    st.add_argument("--scenario", type=_csv_list, help="comma-separated scenarios (overrides --suite)")
+    st.add_argument("--observer", type=_csv_list, help="comma-separated observers (default: all)")
+    st.add_argument("--friction", help="comma-separated: numbers, surfaces, friction YAMLs, or 'scenario'")
+    st.add_argument("--faults", help="';'-separated --faults specs, 'none' allowed")
+    st.add_argument("--seeds", type=_positive_int, default=1, help="Monte Carlo seeds per case")
+    st.add_argument("--seed", type=_seed, help="base seed the Monte Carlo seeds derive from (default 0)")
+    st.add_argument("--jobs", type=_positive_int, default=1, help="parallel processes (or Dask workers)")
+    st.add_argument("--dask", help="Dask scheduler address, or 'local' for a LocalCluster on 127.0.0.1")
+    st.add_argument("--out", default="reports/stress", help="output folder (default reports/stress)")
+    st.set_defaults(func=_cmd_stress)
 
     rl = sub.add_parser("replay", help="run observers on a recorded log and score them")
     rl.add_argument("log", help="CSV, CSV.gz, Parquet or .mat log")

@@ -18,7 +18,8 @@ def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
 
 
 def test_help_for_every_command() -> None:
-    for cmd in ("run", "simulate", "scenarios", "observers", "vehicles", "report", "compare", "replay"):
+    for cmd in ("run", "simulate", "scenarios", "observers", "vehicles", "report", "compare", "replay", "check",
+                "stress"):
         with pytest.raises(SystemExit) as ex:
             main([cmd, "--help"])
         assert ex.value.code == 0

@@ -1,0 +1,387 @@
+"""Robustness sweeps (``roadtruth stress``): scenarios × friction × sensor faults × Monte Carlo seeds.
+
+Every *case* is one (scenario, friction override, fault spec, seed index) and runs the whole chain
+simulate → sensors → observers → score with the stage functions of :mod:`harness.pipeline`. Cases
+are independent, so they run in local worker processes (``jobs``) or on a Dask cluster (``dask``);
+their results are put back in case order, so the files do not depend on how the work was spread.
+
+Seeds. One base seed gives seed index ``k`` the integer
+``SeedSequence(base_seed, spawn_key=(k,)).generate_state(1)[0]``; that integer is then the ``--seed``
+of a normal run (:func:`harness.pipeline.scenario_seeds` mixes in the scenario name and splits it into
+simulation and sensor streams). The same seed index is shared by every friction and fault of a
+scenario (common random numbers), so differences along those axes are not sampling noise.
+
+Output (written atomically): ``stress.csv`` (one row per case × observer × state: the metrics of
+``metrics.csv`` plus ``case, friction, mu, faults, seed_index, seed, truth_status`` and truth
+extremes), ``summary.csv`` (see :mod:`harness.stress_report`), ``run.json`` and ``index.html``.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import math  # noqa: E402
+import time  # noqa: E402
+import traceback  # noqa: E402
+from collections.abc import Iterator  # noqa: E402
+from concurrent.futures import as_completed  # noqa: E402
+from dataclasses import dataclass  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from harness.errors import InputError  # noqa: E402
+from harness.friction_map import friction_from_spec  # noqa: E402
+from harness.outdir import atomic_output_dir  # noqa: E402
+from harness.progress import Progress  # noqa: E402
+from harness.report.rundata import FLOAT_FORMAT, git_revision, versions, write_csv, write_json  # noqa: E402
+
+#: Label of "no override": the scenario's own friction map / no extra faults.
+SCENARIO_FRICTION = "scenario"
+NO_FAULTS = "none"
+#: Base seed when none is given (documented in docs/STRESS.md).
+DEFAULT_BASE_SEED = 0
+#: Columns stress.csv puts before the metrics of ``harness.scoring.COLUMNS``.
+CASE_COLUMNS: tuple[str, ...] = ("case", "friction", "mu", "faults", "seed_index", "seed", "truth_status",
+                                 "peak_abs_ay_mps2", "peak_abs_beta_rad")
+
+
+class StressSpecError(InputError):
+    """A ``roadtruth stress`` list option (``--friction``, ``--faults``, ``--seeds``, ``--dask``) is invalid."""
+
+
+# ---- parsing the LIST options --------------------------------------------------------------------
+
+def _items(text: str, sep: str, field: str) -> list[str]:
+    raw = [s.strip() for s in str(text).split(sep)]
+    if not any(raw):
+        raise StressSpecError(f"empty list (got {text!r})", field=field)
+    for s in raw:
+        if not s:
+            raise StressSpecError(f"empty item in {text!r} (items are separated by {sep!r})", field=field)
+    return list(dict.fromkeys(raw))  # a repeated item would only repeat cases
+
+
+def parse_friction_list(text: str) -> list[str]:
+    """``--friction`` of stress: comma-separated specs of ``--friction`` (number, surface, YAML file).
+
+    ``"scenario"`` keeps each scenario's own map. Returns the specs (duplicates dropped, order kept);
+    each is checked with :func:`harness.friction_map.friction_from_spec`.
+
+    Raises
+    ------
+    StressSpecError
+        Empty list or empty item.
+    ScenarioError
+        An item that is not a valid friction spec (the message names it).
+    """
+    specs = _items(text, ",", "--friction")
+    for s in specs:
+        if s != SCENARIO_FRICTION:
+            friction_from_spec(s)
+    return specs
+
+
+def parse_fault_specs(text: str) -> list[str]:
+    """``--faults`` of stress: fault specs of ``--faults`` separated by ``;`` (``"none"`` = no faults).
+
+    Inside one spec, several faults are joined with ``,`` (``"gnss:dropout=0.5,imu:bias_step=0.3"``).
+    Syntax is checked here with :func:`harness.sensors.faults.parse_faults`; whether the sensor is
+    enabled in a scenario's suite is checked by :func:`run_stress` before any work starts.
+
+    Raises
+    ------
+    StressSpecError
+        Empty list or empty item.
+    SensorConfigError
+        A malformed fault spec (the message names the item).
+    """
+    from harness.sensors.faults import parse_faults
+
+    specs = _items(text, ";", "--faults")
+    for s in specs:
+        if s.lower() != NO_FAULTS:
+            parse_faults(s, source=f"--faults {s!r}")
+    return [NO_FAULTS if s.lower() == NO_FAULTS else s for s in specs]
+
+
+def parse_seed_count(value: int | str) -> int:
+    """``--seeds N``: a whole number >= 1 of Monte Carlo seeds per (scenario, friction, faults)."""
+    try:
+        n = int(str(value).strip())
+    except ValueError:
+        raise StressSpecError(f"not a whole number (got {value!r})", field="--seeds") from None
+    if not 1 <= n <= 100_000:
+        raise StressSpecError(f"must be in [1, 100000] (got {n})", field="--seeds")
+    return n
+
+
+def monte_carlo_seeds(base_seed: int, n: int) -> list[int]:
+    """The integer seed of each seed index ``k < n``: ``SeedSequence(base_seed, spawn_key=(k,))``.
+
+    Seed ``k`` does not depend on ``n``: a sweep with more seeds extends one with fewer.
+    """
+    return [int(np.random.SeedSequence(int(base_seed), spawn_key=(k,)).generate_state(1, np.uint64)[0] >> 1)
+            for k in range(n)]
+
+
+# ---- one case ------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class StressCase:
+    """One point of the sweep (picklable: sent to worker processes and Dask workers)."""
+
+    index: int
+    scenario: str
+    friction: str  # a friction spec or SCENARIO_FRICTION
+    faults: str  # a fault spec or NO_FAULTS
+    seed_index: int
+    seed: int
+    observers: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class CaseResult:
+    index: int
+    rows: pd.DataFrame
+    seconds: float
+    traceback: str | None = None
+
+
+def _mu_label(sc: Any) -> float:
+    """The map's μ when it is uniform, else NaN (a patchy map has no single μ)."""
+    fm = sc.friction
+    return float(fm.mu_default) if fm.is_uniform else math.nan
+
+
+def _peak(frame: pd.DataFrame, column: str) -> float:
+    if column not in frame or frame.empty:
+        return math.nan
+    return float(np.nanmax(np.abs(frame[column].to_numpy(float))))
+
+
+def run_case(case: StressCase) -> CaseResult:
+    """Simulate, sense, estimate and score one case; never raises (a crash becomes ``error: …`` rows).
+
+    The stage calls are those of :func:`harness.pipeline.compute_scenario` minus its file writing
+    (a sweep keeps metrics only).
+    """
+    from harness.estimate import run_observers
+    from harness.pipeline import _FailedTruth, _prepare_scenario, _sensor_config, _SkippedRun, scenario_seeds
+    from harness.scoring import score
+    from harness.sensors import emulate
+    from harness.simulate import simulate
+
+    t0 = time.perf_counter()
+    friction = None if case.friction == SCENARIO_FRICTION else case.friction
+    faults = None if case.faults == NO_FAULTS else case.faults
+    tb = None
+    mu = math.nan
+    mass = None
+    truth: Any = _FailedTruth(status="error: not simulated")
+    estimates = pd.DataFrame(columns=["t_s", "observer", "state", "value", "lo", "hi", "var"])
+    runs: dict[str, Any]
+    try:
+        sc = _prepare_scenario(case.scenario, None, friction)
+        mu = _mu_label(sc)
+        veh = sc.vehicle_params()
+        mass = veh.mass_kg
+        _, sim_seed, sensor_seed = scenario_seeds(sc.seed, case.scenario, case.seed)
+        truth = simulate(sc, seed=sim_seed)
+        if truth.ok:
+            cfg = _sensor_config(sc, None, faults)
+            meas = emulate(truth.frame, veh, cfg, sensor_seed, outages=sc.outages, lane_gaps=sc.lane_gaps)
+            estimates, runs = run_observers(meas.frame, veh, list(case.observers))
+        else:
+            runs = {o: _SkippedRun(status=f"skipped: simulation {truth.status}") for o in case.observers}
+    except Exception as e:  # one broken case must not stop the sweep (inputs were validated up front)
+        status = f"error: {type(e).__name__}: {e}".splitlines()[0]
+        tb = traceback.format_exc()
+        if truth.ok:
+            truth = _FailedTruth(status=status)
+        runs = {o: _SkippedRun(status=status) for o in case.observers}
+    metrics = score(truth.frame, estimates, scenario=case.scenario, runs=runs, mass_kg=mass)
+    head = {"case": case.index, "friction": case.friction, "mu": mu, "faults": case.faults,
+            "seed_index": case.seed_index, "seed": case.seed, "truth_status": str(truth.status),
+            "peak_abs_ay_mps2": _peak(truth.frame, "ay_mps2"), "peak_abs_beta_rad": _peak(truth.frame, "beta_rad")}
+    for i, (k, v) in enumerate(head.items()):
+        metrics.insert(i, k, [v] * len(metrics))
+    return CaseResult(index=case.index, rows=metrics, seconds=time.perf_counter() - t0, traceback=tb)
+
+
+def build_cases(scenarios: list[str], frictions: list[str], faults: list[str], seeds: list[int],
+                observers: list[str]) -> list[StressCase]:
+    """The Cartesian product scenarios × frictions × faults × seeds, in that nesting order."""
+    cases: list[StressCase] = []
+    for sc in scenarios:
+        for fr in frictions:
+            for fa in faults:
+                for k, s in enumerate(seeds):
+                    cases.append(StressCase(index=len(cases), scenario=sc, friction=fr, faults=fa,
+                                            seed_index=k, seed=s, observers=tuple(observers)))
+    return cases
+
+
+# ---- execution -----------------------------------------------------------------------------------
+
+def _run_local(cases: list[StressCase], jobs: int) -> Iterator[CaseResult]:
+    from harness.pipeline import _pool
+
+    if jobs <= 1 or len(cases) <= 1:
+        for c in cases:
+            yield run_case(c)
+        return
+    with _pool(min(jobs, len(cases))) as pool:
+        for fut in as_completed([pool.submit(run_case, c) for c in cases]):
+            yield fut.result()
+
+
+def _run_dask(cases: list[StressCase], address: str, jobs: int, info: dict[str, Any]) -> Iterator[CaseResult]:
+    """Run the cases on ``distributed.Client(address)``; ``address == "local"`` starts a LocalCluster
+    of ``jobs`` worker processes on loopback for this run and closes it afterwards."""
+    try:
+        from distributed import Client, LocalCluster
+        from distributed import as_completed as dask_completed
+    except ImportError:
+        raise StressSpecError("--dask needs the dask and distributed packages "
+                              "(pip install 'dask[distributed]')", field="--dask") from None
+    t = time.perf_counter()
+    cluster = None
+    if address == "local":
+        cluster = LocalCluster(n_workers=max(1, jobs), threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address=None)
+        client = Client(cluster)
+    else:
+        try:
+            client = Client(address, timeout=30)
+        except (OSError, TimeoutError, ValueError) as e:
+            raise StressSpecError(f"cannot connect to Dask scheduler {address!r} ({e})", field="--dask") from None
+    try:
+        info["startup_s"] = round(time.perf_counter() - t, 3)
+        info["workers"] = len(client.scheduler_info().get("workers", {}))
+        futures = client.map(run_case, cases, pure=False)
+        for fut in dask_completed(futures):
+            yield fut.result()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+# ---- the sweep -----------------------------------------------------------------------------------
+
+def _resolve(scenarios: list[str] | None, suite_name: str, observers: list[str] | None,
+             frictions: list[str], faults: list[str]) -> tuple[list[str], list[str]]:
+    """Scenario and observer names, with every (scenario, friction) and (scenario, faults) checked."""
+    from harness.pipeline import _prepare_scenario, _sensor_config
+    from harness.pipeline import _resolve as resolve_run
+
+    names, chosen = resolve_run(scenarios, suite_name, observers, None, None, None, None)
+    if not names:
+        raise StressSpecError(f"suite {suite_name!r} has no scenarios", field="--suite")
+    for n in names:
+        for fr in frictions:
+            _prepare_scenario(n, None, None if fr == SCENARIO_FRICTION else fr)
+        sc = _prepare_scenario(n, None, None)
+        for fa in faults:
+            _sensor_config(sc, None, None if fa == NO_FAULTS else fa)
+    return names, chosen
+
+
+def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", observers: list[str] | None,
+               frictions: list[str] | None, faults: list[str] | None, seeds: int = 1,
+               base_seed: int | None = None, jobs: int = 1, dask: str | None = None,
+               out: Path = Path("reports/stress"), progress: bool | None = None) -> Path:
+    """Run a robustness sweep and write ``stress.csv``, ``summary.csv``, ``run.json``, ``index.html``.
+
+    Parameters
+    ----------
+    scenarios : scenario names (default: the scenarios of ``suite_name``).
+    suite_name : suite (tag) used when ``scenarios`` is not given.
+    observers : observer names (default: every registered observer).
+    frictions : friction specs (number, surface, YAML, or ``"scenario"``); default ``["scenario"]``.
+        Parse a CLI LIST with :func:`parse_friction_list`.
+    faults : fault specs (``--faults`` strings or ``"none"``); default ``["none"]``.
+        Parse a CLI LIST with :func:`parse_fault_specs`.
+    seeds : Monte Carlo seeds per (scenario, friction, faults), >= 1.
+    base_seed : the seed all case seeds derive from (default ``DEFAULT_BASE_SEED``).
+    jobs : local worker processes, or Dask workers with ``dask="local"``.
+    dask : None (local processes), ``"local"`` (a LocalCluster on 127.0.0.1) or a scheduler address.
+    out : output folder; replaced atomically when the sweep is complete.
+    progress : True = tqdm bar, False = one line per case, None = bar only on a terminal.
+
+    Returns
+    -------
+    Path
+        The output folder (resolved).
+
+    Raises
+    ------
+    InputError
+        Bad scenario, observer, friction, fault spec, seed count or Dask address (before any work).
+    """
+    from harness.stress_report import summarize, write_index
+
+    t_wall = time.perf_counter()
+    n_seeds = parse_seed_count(seeds)
+    if jobs < 1:
+        raise StressSpecError(f"must be >= 1 (got {jobs})", field="--jobs")
+    base = DEFAULT_BASE_SEED if base_seed is None else int(base_seed)
+    if base < 0:
+        raise StressSpecError(f"must be >= 0 (got {base})", field="--seed")
+    fr_list = list(dict.fromkeys(frictions)) if frictions else [SCENARIO_FRICTION]
+    fa_list = [NO_FAULTS if f.lower() == NO_FAULTS else f for f in dict.fromkeys(faults)] if faults else [NO_FAULTS]
+    names, chosen = _resolve(scenarios, suite_name, observers, fr_list, fa_list)
+    seed_values = monte_carlo_seeds(base, n_seeds)
+    cases = build_cases(names, fr_list, fa_list, seed_values, chosen)
+
+    dask_info: dict[str, Any] = {}
+    results: dict[int, CaseResult] = {}
+    bar = Progress(len(cases), progress, desc="roadtruth stress")
+    out = Path(out)
+    try:
+        with atomic_output_dir(out) as tmp:
+            os.chmod(tmp, 0o755)
+            t_run = time.perf_counter()
+            stream = _run_dask(cases, dask, jobs, dask_info) if dask else _run_local(cases, jobs)
+            for r in stream:
+                results[r.index] = r
+                c = cases[r.index]
+                bar.item(f"case {c.index}: {c.scenario} friction={c.friction} faults={c.faults} "
+                         f"seed#{c.seed_index}: {r.rows['truth_status'].iloc[0] if len(r.rows) else '?'}, "
+                         f"{r.seconds:.1f} s")
+            run_s = time.perf_counter() - t_run
+            rows = pd.concat([results[c.index].rows for c in cases], ignore_index=True)
+            write_csv(rows, tmp / "stress.csv")
+            summary = summarize(rows)
+            write_csv(summary, tmp / "summary.csv")
+            case_s = [results[c.index].seconds for c in cases]
+            run_json = {
+                "command": "stress", "suite": suite_name if not scenarios else None, "scenarios": names,
+                "observers": chosen, "frictions": fr_list, "faults": fa_list, "seeds": n_seeds,
+                "base_seed": base, "seed_values": seed_values, "n_cases": len(cases), "jobs": jobs,
+                "executor": ("dask " + dask) if dask else ("processes" if jobs > 1 else "in-process"),
+                "dask": dask_info or None, "float_format": FLOAT_FORMAT,
+                "case_errors": {str(c.index): results[c.index].traceback for c in cases
+                                if results[c.index].traceback},
+                "timings_s": {"cases_wall": round(run_s, 3), "case_sum": round(sum(case_s), 3),
+                              "case_mean": round(sum(case_s) / len(case_s), 3)},
+                "cases_per_s": round(len(cases) / run_s, 4) if run_s > 0 else None,
+                "versions": versions(), "git_revision": git_revision(),
+            }
+            run_json["wall_s"] = round(time.perf_counter() - t_wall, 3)
+            write_json(run_json, tmp / "run.json")
+            write_index(tmp, summary, run_json)
+    finally:
+        bar.close()
+    bar.note(f"wrote {out.resolve()}: {len(cases)} cases in {time.perf_counter() - t_wall:.1f} s")
+    return out.resolve()
+
+
+__all__: list[str] = ["CASE_COLUMNS", "CaseResult", "NO_FAULTS", "SCENARIO_FRICTION", "StressCase",
+                      "StressSpecError", "build_cases", "monte_carlo_seeds", "parse_fault_specs",
+                      "parse_friction_list", "parse_seed_count", "run_case", "run_stress"]

@@ -1,0 +1,159 @@
+"""Stress sweeps: exact Cartesian product, seeds independent of how the work is spread (in-process,
+worker processes, a real Dask LocalCluster on loopback), physical bounds of the truth, crashes as
+statuses, and one-line input errors naming the bad value."""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from harness.errors import InputError, ScenarioError, SensorConfigError
+from harness.stress import (
+    NO_FAULTS,
+    StressSpecError,
+    build_cases,
+    monte_carlo_seeds,
+    parse_fault_specs,
+    parse_friction_list,
+    parse_seed_count,
+    run_stress,
+)
+
+G = 9.80665
+SCENARIO = "step_steer"
+OBSERVERS = ["kf_bicycle", "lpv_wang"]
+FRICTIONS = ["1.0", "0.3"]
+BASE_SEED = 7
+# Columns that measure the machine, not the result.
+TIMING_COLUMNS = ["us_per_step"]
+
+
+def _sweep(out: Path, **kw: object) -> Path:
+    args: dict[str, object] = {"scenarios": [SCENARIO], "observers": OBSERVERS, "frictions": FRICTIONS,
+                               "faults": None, "seeds": 2, "base_seed": BASE_SEED, "progress": False}
+    args.update(kw)
+    return run_stress(out=out, **args)  # type: ignore[arg-type]
+
+
+def _rows(folder: Path) -> pd.DataFrame:
+    return pd.read_csv(folder / "stress.csv", keep_default_na=False, na_values=[""])
+
+
+@pytest.fixture(scope="module")
+def serial(tmp_path_factory: pytest.TempPathFactory, isolated_design_cache: None) -> Path:
+    return _sweep(tmp_path_factory.mktemp("stress") / "serial", jobs=1)
+
+
+def test_cases_and_seeds_are_exactly_the_cartesian_product(serial: Path) -> None:
+    rows = _rows(serial)
+    seeds = monte_carlo_seeds(BASE_SEED, 2)
+    cases = rows.drop_duplicates("case")
+    got = sorted(zip(cases["scenario"], cases["friction"].astype(str), cases["faults"], cases["seed"], strict=True))
+    want = sorted(itertools.product([SCENARIO], FRICTIONS, [NO_FAULTS], seeds))
+    assert got == want
+    assert list(cases["case"]) == list(range(4))
+    # every case scores every observer, and the seed index maps to its seed
+    assert rows.groupby("case")["observer"].nunique().eq(len(OBSERVERS)).all()
+    assert all(seeds[k] == s for k, s in zip(cases["seed_index"], cases["seed"], strict=True))
+    assert rows["status"].str.startswith("ok").all()
+    summary = pd.read_csv(serial / "summary.csv", keep_default_na=False, na_values=[""])
+    assert summary["n_cases"].eq(2).all()  # two seeds per (observer, state, friction, faults)
+    assert len(summary) == rows.groupby(["observer", "state", "friction"]).ngroups
+    html = (serial / "index.html").read_text()
+    assert "<svg" in html and "http://" not in html.replace("http://www.w3.org/2000/svg", "")
+
+
+def test_seeds_derive_from_the_base_seed_and_extend() -> None:
+    a, b = monte_carlo_seeds(3, 2), monte_carlo_seeds(3, 5)
+    assert a == b[:2] and len(set(b)) == 5
+    assert monte_carlo_seeds(4, 2) != a
+    cases = build_cases(["x", "y"], ["1.0", "ice"], ["none", "gnss:dropout=0.5"], a, ["o"])
+    assert len(cases) == 2 * 2 * 2 * 2
+    assert len({(c.scenario, c.friction, c.faults, c.seed) for c in cases}) == len(cases)
+
+
+def test_peak_lateral_acceleration_is_bounded_by_road_friction(serial: Path) -> None:
+    """|a_y| <= mu * g * grip (tire peak force <= grip * mu * Fz), with 15 % for load transfer
+    dynamics and the unfiltered 1 kHz signal."""
+    from harness.scenario import load_scenario
+
+    grip = load_scenario(SCENARIO).vehicle_params().tires.grip
+    cases = _rows(serial).drop_duplicates("case")
+    for mu, peak in zip(cases["mu"], cases["peak_abs_ay_mps2"], strict=True):
+        assert 0.0 < peak <= mu * G * grip * 1.15
+    low = cases[cases["mu"] == 0.3]
+    # at mu = 0.3 the car saturates: the peak is near the friction limit, not far below it
+    assert (low["peak_abs_ay_mps2"] > 0.8 * 0.3 * G * grip).all()
+
+
+def _same_results(a: Path, b: Path) -> None:
+    ra, rb = _rows(a).drop(columns=TIMING_COLUMNS), _rows(b).drop(columns=TIMING_COLUMNS)
+    pd.testing.assert_frame_equal(ra, rb, check_exact=True)
+
+
+def test_worker_processes_give_identical_results(serial: Path, tmp_path: Path) -> None:
+    _same_results(serial, _sweep(tmp_path / "jobs2", jobs=2))
+
+
+def test_real_dask_local_cluster_gives_identical_results(serial: Path, tmp_path: Path) -> None:
+    pytest.importorskip("distributed")
+    out = _sweep(tmp_path / "dask", jobs=2, dask="local")
+    _same_results(serial, out)
+    import json
+
+    run = json.loads((out / "run.json").read_text())
+    assert run["executor"] == "dask local" and run["dask"]["workers"] == 2
+
+
+def test_a_crashing_case_becomes_error_rows_and_the_sweep_goes_on(tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    import harness.sensors as sensors
+
+    real = sensors.emulate
+
+    def emulate_failing_on_ice(frame: pd.DataFrame, *args: object, **kw: object) -> object:
+        # mu = 0.1 only limits a_y below 0.1 g * grip * 1.15: fail there, run normally on dry road
+        if np.nanmax(np.abs(frame["ay_mps2"].to_numpy())) < 0.15 * G:
+            raise RuntimeError("sensor rig on fire")
+        return real(frame, *args, **kw)
+
+    monkeypatch.setattr(sensors, "emulate", emulate_failing_on_ice)
+    out = _sweep(tmp_path / "crash", frictions=["1.0", "ice"], seeds=1, jobs=1)
+    rows = _rows(out)
+    ice, dry = rows[rows["friction"] == "ice"], rows[rows["friction"] == "1.0"]
+    assert set(ice["observer"]) == set(OBSERVERS) == set(dry["observer"])
+    assert ice["status"].eq("error: RuntimeError: sensor rig on fire").all()
+    assert ice["rmse"].isna().all()
+    assert dry["status"].str.startswith("ok").all()
+    summary = pd.read_csv(out / "summary.csv", keep_default_na=False, na_values=[""])
+    assert summary.loc[summary["friction"] == "ice", "frac_error"].eq(1.0).all()
+
+
+@pytest.mark.parametrize(("call", "error", "named"), [
+    (lambda: parse_friction_list("1.0,,0.3"), StressSpecError, "1.0,,0.3"),
+    (lambda: parse_friction_list("1.0,tarmac"), ScenarioError, "tarmac"),
+    (lambda: parse_friction_list("0.6,2.5"), ScenarioError, "2.5"),
+    (lambda: parse_fault_specs("none;gnss:wobble=3"), SensorConfigError, "gnss:wobble=3"),
+    (lambda: parse_fault_specs(" ; "), StressSpecError, " ; "),
+    (lambda: parse_seed_count("0"), StressSpecError, "0"),
+    (lambda: parse_seed_count("two"), StressSpecError, "two"),
+])
+def test_bad_lists_raise_one_line_input_errors_naming_the_value(call, error, named: str) -> None:
+    with pytest.raises(error) as info:
+        call()
+    assert isinstance(info.value, InputError)
+    msg = str(info.value)
+    assert named in msg and "\n" not in msg
+
+
+def test_lists_parse_and_a_disabled_sensor_fault_is_refused_before_work(tmp_path: Path) -> None:
+    assert parse_friction_list("1.0, ice,1.0") == ["1.0", "ice"]
+    assert parse_fault_specs("None; gnss:dropout=0.5,imu:bias_step=0.3") == [
+        "none", "gnss:dropout=0.5,imu:bias_step=0.3"]
+    with pytest.raises(SensorConfigError, match="ogs"):
+        _sweep(tmp_path / "x", faults=["ogs:dropout=0.5"])
+    assert not (tmp_path / "x").exists()
