@@ -33,7 +33,10 @@ def _signals(n: int = 800, h: float = 0.01) -> tuple[np.ndarray, dict[str, np.nd
     camera = (np.arange(n) % 3) == 0
     sig = {"delta_rad": delta, "vx_mps": vx, "yaw_rate_radps": r, "ay_mps2": r * vx,
            "ax_mps2": np.full(n, 0.5), "psi_lane_rad": np.where(camera, psi, np.nan),
-           "y_lane_m": np.where(camera, y_lane, np.nan), "rho_1pm": np.where(camera, 0.0, np.nan)}
+           "y_lane_m": np.where(camera, y_lane, np.nan), "rho_1pm": np.where(camera, 0.0, np.nan),
+           # Radar to a lead car pulling away at 0.5 m/s, 20 Hz.
+           "range_m": np.where(np.arange(n) % 5 == 0, 30.0 + 0.5 * t, np.nan),
+           "range_rate_mps": np.where(np.arange(n) % 5 == 0, 0.5, np.nan)}
     return t, sig
 
 

@@ -1,0 +1,225 @@
+"""Radar high-gain observers of seed 000 (Bessafa 2024, Thm 4.3.1 / Thm 4.3.4, sec. 5.2).
+
+On the seed's own relative longitudinal model (M7d, no noise): the Lyapunov function decays at the
+certified rate, the multi-output observer keeps range rate and lead acceleration when the range is
+lost while the standard HGO's range error grows without bound; the designs certify; the printed
+SHGO gains reproduce; the printed Method-2 design fails condition (4.40) with lambda = 1.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from harness.errors import InputError
+from harness.vehicle import load_vehicle
+from observers.high_gain_radar import SEED_LEAD
+from observers.high_gain_radar_design import PRINTED_SHGO, certify_gains, gradient_corners, lipschitz_kf
+from observers.lmi import DesignStatus
+from observers.registry import create
+
+SEDAN = load_vehicle("sedan")
+NAMES = ("hgo_radar_standard", "hgo_radar_multi", "hgo_radar_standard_printed")
+BOX = {"v": (0.0, 45.0), "a": (-10.0, 6.0)}
+
+pytestmark = pytest.mark.usefixtures("isolated_design_cache")
+
+
+def seed_truth(t_end: float, h: float = 0.01, sub: int = 20,
+               x0: tuple[float, float, float] = (30.0, 0.5, 1.0)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Simulate M7d (RK4, ``sub`` substeps per ``h``): lead of (1.35) with the seed's parameters, ego at
+    ``v_E = 18 + sin t``. Returns t (n,) [s], truth (n, 3) (range, range rate, a_L), inputs (n, 4)."""
+    m, tau, kd, dm = SEED_LEAD["mass_kg"], SEED_LEAD["tau_s"], SEED_LEAD["kd_Ns2pm2"], SEED_LEAD["dm_N"]
+
+    def rhs(t: float, x: np.ndarray) -> np.ndarray:
+        v, a = x[1] + 18.0 + np.sin(t), x[2]
+        f = -(2 * kd / m) * v * a - (a + kd / m * v * v + dm / m) / tau
+        return np.array([x[1], a - np.cos(t), f])
+
+    n = int(round(t_end / h)) + 1
+    t = np.arange(n) * h
+    X = np.zeros((n, 3))
+    x = np.array(x0, dtype=float)
+    X[0] = x
+    dt = h / sub
+    for k in range(1, n):
+        for j in range(sub):
+            s = t[k - 1] + j * dt
+            k1 = rhs(s, x)
+            k2 = rhs(s + dt / 2, x + dt / 2 * k1)
+            k3 = rhs(s + dt / 2, x + dt / 2 * k2)
+            k4 = rhs(s + dt, x + dt * k3)
+            x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        X[k] = x
+    return t, X, np.column_stack([X[:, 0], X[:, 1], 18.0 + np.sin(t), np.cos(t)])
+
+
+def track(name: str, t: np.ndarray, Y: np.ndarray, x0: dict[str, float]) -> np.ndarray:
+    """Internal states (n, 3) of ``name`` started from ``x0``."""
+    obs = create(name, SEDAN)
+    obs.reset(float(t[0]), x0)
+    out = []
+    for i in range(len(t)):
+        obs.step(float(t[i]), Y[i])
+        out.append(obs.internal_state())
+    return np.array(out)
+
+
+X0_WRONG = {"range_m": 31.0, "range_rate_mps": 0.0, "lead_accel_mps2": 0.0}
+
+
+@pytest.fixture(scope="module")
+def truth_4s() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return seed_truth(4.0)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_designs_certify_and_are_rechecked_independently(name: str) -> None:
+    obs = create(name, SEDAN)
+    d = obs.design()
+    assert d.status is DesignStatus.CERTIFIED and d.certified, d.reason
+    P, K, N = np.array(d.P), d.gain("K"), d.gain("N")
+    Y, Z = d.gain("Y").reshape(1, 3), d.gain("Z").reshape(1, 3)
+    np.testing.assert_allclose(K, np.linalg.solve(P, Y.T).reshape(3), rtol=1e-9)
+    np.testing.assert_allclose(N, np.linalg.solve(P, Z.T).reshape(3), rtol=1e-9, atol=1e-12)
+    A = np.diag([1.0, 1.0], k=1)
+    C = np.array([[1.0, 0.0, 0.0]])
+    e2 = np.array([[0.0, 1.0, 0.0]])
+    lam, sigma = d.margins["lambda"], d.margins["sigma"]
+    xis = (0.0, sigma ** -2) if name == "hgo_radar_multi" else (0.0,)
+    for xi2 in xis:  # LMI (4.57) / (4.20), without the noise block (a Schur complement of it)
+        M = P @ A - C.T @ Y - xi2 * Z.T @ e2
+        assert np.linalg.eigvalsh(M + M.T + lam * np.eye(3)).max() < 0.0
+    kf = lipschitz_kf(gradient_corners(SEED_LEAD, BOX["v"], BOX["a"]))
+    assert kf == pytest.approx(d.margins["k_f"]) and 2.0 < kf < 2.1  # ~1/tau (digest M7)
+    theta0 = 2 * kf * np.linalg.eigvalsh(P).max() / lam
+    assert d.margins["theta"] > theta0 and d.margins["kappa_per_s"] > 0
+    # the running gains are T(theta) K and T(theta) N / theta^3 (corrected Thm 4.3.4, digest sec. 6)
+    L, Mz = obs.gains()
+    th = d.margins["theta"]
+    np.testing.assert_allclose(L, [th * K[0], th ** 2 * K[1], th ** 3 * K[2]], rtol=1e-12)
+    if name == "hgo_radar_multi":
+        np.testing.assert_allclose(Mz, [N[0] / th ** 2, N[1] / th, N[2]], rtol=1e-12)
+        assert Mz[1] > 0 and Mz[2] > 0  # the range-rate channel is really used (Remark 4.3.1)
+    else:
+        assert not np.any(Mz)
+
+
+def test_printed_shgo_gain_reproduces() -> None:
+    P, Y = np.array(PRINTED_SHGO["P"]), np.array(PRINTED_SHGO["Y"])
+    np.testing.assert_allclose(np.linalg.solve(P, Y), PRINTED_SHGO["K"], rtol=2e-4)
+    d = create("hgo_radar_standard_printed", SEDAN).design()
+    assert d.margins["theta0"] == pytest.approx(35.6, abs=0.1)  # digest: 35.28 with k_f = 1.9964
+    assert d.margins["theta0"] < PRINTED_SHGO["theta"]
+
+
+def test_printed_method2_fails_theta_condition_with_lambda_one() -> None:
+    """sec. 5.2.2(b): theta = 30.37 cannot satisfy (4.40) at lambda = 1 (theta_0 ~ 1500, digest sec. 6)."""
+    P = np.array([[294.6169, -85.2035, -111.2819], [-85.2035, 105.2495, -49.4222],
+                  [-111.2819, -49.4222, 211.9653]])
+    Y = np.array([[104.6494, 350.2155, -29.3206]])
+    Z = np.array([[2.9269, 1.6601, 2.0146]])
+    corners = gradient_corners(SEED_LEAD, BOX["v"], BOX["a"])
+    kf = lipschitz_kf(corners)
+    bad = certify_gains("method2_printed", P, Y, Z, np.array([[1e9]]), 1.0, 1.0, kf, corners, 30.3704, {})
+    assert bad.status is DesignStatus.REJECTED and "theta_0" in bad.reason
+    assert bad.margins["theta0"] > 1400
+    # the LMI itself holds (digest: up to lambda ~ 72): only the theta condition fails
+    assert bad.margins["thm_lmi_max_eig_vertices"] < 0
+
+
+@pytest.mark.parametrize("name", ["hgo_radar_standard", "hgo_radar_multi"])
+def test_certified_decay_rate_on_seed_model(name: str, truth_4s: tuple) -> None:
+    t, X, Y = truth_4s
+    d = create(name, SEDAN).design()
+    th, P = d.margins["theta"], np.array(d.P)
+    eps = (X - track(name, t, Y, X0_WRONG)) / np.array([th, th ** 2, th ** 3])
+    V = np.einsum("ij,jk,ik->i", eps, P, eps)
+    kappa, kappa_v = d.margins["kappa_per_s"], d.margins["kappa_vertex_per_s"]
+    assert kappa_v > kappa > 0
+    early = t <= 2.0   # before the discretisation floor (V ~ 1e-13)
+    assert np.all(V[early] <= V[0] * np.exp(-kappa * t[early]))
+    fast = t <= 0.6
+    assert np.all(V[fast] <= V[0] * np.exp(-kappa_v * t[fast]))
+    # the peaking bound (4.59) with w = 0
+    e = X - track(name, t, Y, X0_WRONG)
+    bound = th ** 2 * np.sqrt(np.linalg.cond(P)) * np.linalg.norm(e[0]) * np.exp(-kappa * t / 2)
+    assert np.all(np.linalg.norm(e, axis=1)[early] <= bound[early])
+    late = t >= 1.0
+    assert np.abs(e[late, :2]).max() < 1e-4 and np.abs(e[late, 2]).max() < 2e-3
+
+
+def test_range_dropout_multi_keeps_rate_and_accel_standard_drifts() -> None:
+    """Range lost from the start (Fig 5.9's situation): only the range rate channel remains."""
+    t, X, Y = seed_truth(10.0)
+    Y = Y.copy()
+    Y[:, 0] = np.nan
+    e_std = X - track("hgo_radar_standard", t, Y, X0_WRONG)
+    e_mul = X - track("hgo_radar_multi", t, Y, X0_WRONG)
+    i5, i10 = int(np.searchsorted(t, 5.0)), len(t) - 1
+    # SHGO: open loop; the range-rate error stays (integrator chain), the range error grows linearly
+    assert abs(e_std[i10, 1]) > 0.5
+    assert abs(e_std[i10, 0]) > 5.0 and abs(e_std[i10, 0]) - abs(e_std[i5, 0]) > 3.0
+    # generalized HGO: range rate and lead acceleration converge, the range error freezes
+    assert abs(e_mul[i10, 1]) < 1e-3 and abs(e_mul[i10, 2]) < 1e-3
+    assert abs(e_mul[i10, 0] - e_mul[i5, 0]) < 0.01 and abs(e_mul[i10, 0]) < 1.0
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_radar_inputs_conformance(name: str) -> None:
+    """The conformance suite has no radar columns; the same checks with them."""
+    rng = np.random.default_rng(3)
+    t, X, Y = seed_truth(3.0, sub=2)
+    Y = Y + rng.normal(0, 1e-3, Y.shape)
+    Y[np.arange(len(t)) % 5 != 0, :2] = np.nan   # radar at 20 Hz
+    Y[:30] = np.nan
+    Y[rng.random(Y.shape) < 0.2] = np.nan
+    Y[150:220] = np.nan
+    a, b = create(name, SEDAN), create(name, SEDAN)
+    ta, tb = a.run(t, Y), b.run(t, Y)
+    assert ta.states == ("range_m", "range_rate_mps")
+    assert ta.x.tobytes() == tb.x.tobytes() and a.run(t, Y).x.tobytes() == ta.x.tobytes()
+    assert np.all(np.isfinite(ta.x)) and np.isfinite(a.lead_accel_mps2())
+    # nothing before the first range sample: the initial state, exactly
+    first = int(np.flatnonzero(np.isfinite(Y[:, 0]))[0])
+    assert np.all(ta.x[:first] == 0.0) and ta.x[first, 0] == Y[first, 0]
+    allnan = create(name, SEDAN).run(t[:50], np.full((50, 4), np.nan))
+    assert np.all(allnan.x == 0.0)
+    a.reset(float(t[0]))
+    for i in range(40):
+        np.testing.assert_array_equal(a.step(float(t[i]), Y[i]).x, ta.x[i])
+
+
+def test_options_are_checked() -> None:
+    with pytest.raises(InputError, match="unknown option"):
+        create("hgo_radar_multi", SEDAN, no_such_option=1)
+    with pytest.raises(InputError):
+        create("hgo_radar_multi", SEDAN, theta_factor=0.5)
+    with pytest.raises(InputError):
+        create("hgo_radar_standard", SEDAN, lead_speed_range_mps=(10.0, 5.0))
+    with pytest.raises(InputError):
+        create("hgo_radar_standard", SEDAN).reset(0.0, {"no_such_state": 1.0})
+
+
+def test_mujoco_car_following_runs_with_finite_metrics() -> None:
+    from harness.estimate import run_observers
+    from harness.scenario import load_scenario
+    from harness.sensors import load_sensor_config
+    from harness.sensors.suite import emulate
+    from harness.simulate import simulate
+
+    sc = dataclasses.replace(load_scenario("car_following"), duration_s=3.0)
+    truth = simulate(sc)
+    meas = emulate(truth.frame, SEDAN, load_sensor_config(sc.sensors, sc.sensor_overrides, None), 1,
+                   outages=sc.outages, lane_gaps=sc.lane_gaps)
+    est, runs = run_observers(meas.frame, SEDAN, ["hgo_radar_standard", "hgo_radar_multi"])
+    for name in ("hgo_radar_standard", "hgo_radar_multi"):
+        assert runs[name].status == "ok" and runs[name].certified, runs[name]
+        sub = est[(est["observer"] == name) & (est["state"] == "range_m")]
+        tt = sub["t_s"].to_numpy()
+        assert len(sub) > 200 and np.all(np.isfinite(sub["value"].to_numpy()))
+        ref = np.interp(tt, truth.frame["t_s"].to_numpy(), truth.frame["range_m"].to_numpy())
+        k = tt >= 0.5
+        assert np.sqrt(np.mean((sub["value"].to_numpy()[k] - ref[k]) ** 2)) < 0.5  # radar noise 0.1 m
