@@ -111,6 +111,10 @@ def _judge(rule: Rule, value: Any) -> tuple[str, str]:
     return "pass", ""
 
 
+#: Observer statuses that mean "not applicable to this scenario", which no threshold judges.
+NOT_APPLICABLE = "skipped: missing"
+
+
 def _threshold_outcomes(metrics: pd.DataFrame, rule: Rule, known: pd.DataFrame | None) -> list[CheckOutcome]:
     sel = (_matches(rule.scenario, metrics["scenario"]) & _matches(rule.observer, metrics["observer"])
            & _matches(rule.state, metrics["state"])) if len(metrics) else pd.Series(dtype=bool)
@@ -128,6 +132,11 @@ def _threshold_outcomes(metrics: pd.DataFrame, rule: Rule, known: pd.DataFrame |
     out = []
     has_col = rule.metric in metrics.columns
     for d in rows.to_dict("records"):
+        if str(d.get("status", "")).startswith(NOT_APPLICABLE):
+            # The scenario lacks a sensor the observer needs (e.g. no radar target): nothing to judge.
+            out.append(CheckOutcome("threshold", str(d["scenario"]), str(d["observer"]), str(d["state"]),
+                                    rule.metric, rule.label, d.get("status"), "skip", "", rule.where))
+            continue
         value = d.get(rule.metric) if has_col else None
         verdict, reason = _judge(rule, value)
         if not has_col:

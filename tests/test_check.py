@@ -300,3 +300,15 @@ def test_cli_check_passes_then_fails_with_strict_thresholds(tmp_path: Path):
     assert "broken.yaml: rules[0].mx: unknown field" in err.stderr
     assert not (tmp_path / "never").exists()
 
+
+
+def test_observer_not_applicable_to_a_scenario_is_skipped_not_failed():
+    m = metrics_frame()
+    m.loc[(m.scenario == "s2") & (m.observer == "obs_b"), "status"] = "skipped: missing range_m"
+    m.loc[(m.scenario == "s2") & (m.observer == "obs_b"), "rmse"] = math.nan
+    rules = [Rule(metric="status", equals="ok"), Rule(metric="rmse", max=0.05)]
+    v = verdicts(evaluate(m, rules))
+    assert v[("s2", "obs_b", "beta_rad")] == "skip"
+    assert v[("s1", "obs_b", "beta_rad")] == "pass"
+    m.loc[(m.scenario == "s1") & (m.observer == "obs_a"), "status"] = "diverged"
+    assert "fail" in {o.verdict for o in evaluate(m, rules) if o.scenario == "s1" and o.observer == "obs_a"}
