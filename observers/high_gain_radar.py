@@ -53,7 +53,7 @@ import numpy as np
 
 from harness.errors import InputError
 from observers.base import ScalarLoopObserver
-from observers.lmi import DesignResult, DesignStatus
+from observers.lmi import DesignFailed, DesignResult, DesignStatus
 from observers.registry import register
 
 #: Lead model of sec. 5.2.2 (MATLAB case): m = 1850 kg, tau = 0.5 s, K_d = 0.3 N s^2/m^2, d_m = 100 N.
@@ -75,9 +75,6 @@ _COMMON: dict[str, Any] = {
     "use_cache": True,
 }
 
-
-class DesignFailed(RuntimeError):
-    """The observer has no usable gains (infeasible or failed design)."""
 
 
 @register

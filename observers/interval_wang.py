@@ -76,7 +76,7 @@ from typing import Any
 from harness.errors import InputError
 from observers.base import ScalarLoopObserver
 from observers.bicycle import axle_stiffness, expm2_zoh, slip_model_terms
-from observers.lmi import DesignResult, DesignStatus
+from observers.lmi import DesignResult, usable_gains
 from observers.registry import register
 
 KMH = 1.0 / 3.6
@@ -94,9 +94,6 @@ _COMMON: dict[str, Any] = {
     "use_cache": True,
 }
 
-
-class DesignFailed(RuntimeError):
-    """The observer has no usable gains (infeasible or failed design)."""
 
 
 def _pair(value: Any, field: str) -> tuple[float, float]:
@@ -166,10 +163,7 @@ class IntervalWang(ScalarLoopObserver):
     def gains(self) -> tuple[float, ...]:
         """``(L0, L1, L2)`` flattened to 6 floats; raises :class:`DesignFailed` without usable gains."""
         if self._L is None:
-            d = self.design()
-            if d.status not in (DesignStatus.CERTIFIED, DesignStatus.REJECTED) or "L0" not in d.gains:
-                raise DesignFailed(f"{self.name}: design {d.status.value}: {d.reason}")
-            self._L = tuple(float(x) for k in ("L0", "L1", "L2") for x in d.gain(k).reshape(-1))
+            self._L = usable_gains(self.name, self.design(), ("L0", "L1", "L2"))
         return self._L
 
     # internal state: [upper_1, upper_2, lower_1, lower_2] with component 1 = alpha_f until the first

@@ -89,6 +89,21 @@ class DesignResult:
         return cls(**d)
 
 
+class DesignFailed(RuntimeError):
+    """An observer has no usable gains (infeasible or failed design); the runner reports it as an error."""
+
+
+def usable_gains(name: str, design: DesignResult, keys: Sequence[str]) -> tuple[float, ...]:
+    """The gains ``keys`` of a design, flattened in order, for running an observer.
+
+    Certified designs and rejected ones that still carry gains (the "as printed" variants, which run
+    with ``certified = False``) are usable; anything else raises :class:`DesignFailed`.
+    """
+    if design.status not in (DesignStatus.CERTIFIED, DesignStatus.REJECTED) or any(k not in design.gains for k in keys):
+        raise DesignFailed(f"{name}: design {design.status.value}: {design.reason}")
+    return tuple(float(x) for k in keys for x in design.gain(k).reshape(-1))
+
+
 @dataclass(frozen=True)
 class SolverSettings:
     """Solver order and tolerances. ``strictness`` (default 100x ``tol``) makes ``< 0`` strict;

@@ -32,7 +32,7 @@ from typing import Any
 
 from observers.base import ScalarLoopObserver
 from observers.bicycle import expm2_zoh, slip_model_terms
-from observers.lmi import DesignResult, DesignStatus
+from observers.lmi import DesignResult, usable_gains
 from observers.registry import register
 
 KMH = 1.0 / 3.6
@@ -44,9 +44,6 @@ _COMMON: dict[str, Any] = {
     "use_cache": True,
 }
 
-
-class DesignFailed(RuntimeError):
-    """The observer has no usable gains (infeasible or failed design)."""
 
 
 @register
@@ -82,10 +79,7 @@ class LPVWang(ScalarLoopObserver):
     def gains(self) -> tuple[float, ...]:
         """``(L0, L1, L2)`` flattened to 6 floats; raises :class:`DesignFailed` without usable gains."""
         if self._L is None:
-            d = self.design()
-            if d.status not in (DesignStatus.CERTIFIED, DesignStatus.REJECTED) or "L0" not in d.gains:
-                raise DesignFailed(f"{self.name}: design {d.status.value}: {d.reason}")
-            self._L = tuple(float(x) for k in ("L0", "L1", "L2") for x in d.gain(k).reshape(-1))
+            self._L = usable_gains(self.name, self.design(), ("L0", "L1", "L2"))
         return self._L
 
     # internal state: [alpha_f, alpha_r] until the first delta, then [z1 = alpha_f - delta, alpha_r]

@@ -56,12 +56,8 @@ import numpy as np
 from harness.errors import InputError
 from observers.base import ScalarLoopObserver
 from observers.bicycle import expm2_zoh
-from observers.lmi import DesignResult, DesignStatus
+from observers.lmi import DesignFailed, DesignResult, DesignStatus
 from observers.registry import register
-
-
-class DesignFailed(RuntimeError):
-    """The observer has no certified gains."""
 
 
 def _mul(a: float, lo: float, hi: float) -> tuple[float, float]:

@@ -80,15 +80,10 @@ from harness.errors import InputError
 from harness.tire import jit
 from observers.base import ScalarLoopObserver
 from observers.levant_differentiator import LAMBDAS, LevantDifferentiator
-from observers.lmi import DesignResult, DesignStatus
+from observers.lmi import DesignFailed, DesignResult, DesignStatus
 from observers.registry import register
 from observers.takagi_sugeno_design import RULES, SEED_STIFFNESS_NPR, TSModel, secant_slope, sector_bounds
 from observers.tire_curves import axle_curves
-
-
-class DesignFailed(RuntimeError):
-    """The observer has no usable gains (infeasible or failed design)."""
-
 
 # ---- compiled step -------------------------------------------------------------------------------
 

@@ -58,8 +58,7 @@ import numpy as np
 from harness.errors import InputError
 from harness.tire import jit
 from observers.base import ScalarLoopObserver
-from observers.lmi import DesignResult, DesignStatus
-from observers.lpv_wang import DesignFailed
+from observers.lmi import DesignFailed, DesignResult, DesignStatus
 from observers.registry import register
 from observers.uio_nguyen_design import MU_SCALE_N, N_X, N_ZETA, scheduling_points, vehicle_model
 

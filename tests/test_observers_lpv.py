@@ -7,8 +7,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from harness.vehicle import load_vehicle
-from observers.lmi import DesignStatus
-from observers.lpv_wang import DesignFailed
+from observers.lmi import DesignFailed, DesignStatus
 from observers.registry import create
 
 pytestmark = pytest.mark.usefixtures("isolated_design_cache")
