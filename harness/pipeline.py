@@ -29,7 +29,7 @@ import sys  # noqa: E402
 import time  # noqa: E402
 import traceback  # noqa: E402
 import zlib  # noqa: E402
-from collections.abc import Iterable  # noqa: E402
+from collections.abc import Iterable, Sequence  # noqa: E402
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed  # noqa: E402
 from dataclasses import dataclass, field  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -89,7 +89,7 @@ def scenario_seeds(scenario_seed: int, name: str, seed: int | None) -> tuple[np.
     return ss, int(sim_ss.generate_state(1)[0]), int(sensor_ss.generate_state(1)[0])
 
 
-def _prepare_scenario(name: str, vehicle: str | None, friction: str | None) -> Any:
+def prepare_scenario(name: str, vehicle: str | None, friction: str | None) -> Any:
     from harness.scenario import load_scenario
 
     sc = load_scenario(name)
@@ -100,7 +100,7 @@ def _prepare_scenario(name: str, vehicle: str | None, friction: str | None) -> A
     return sc
 
 
-def _sensor_config(sc: Any, sensors: str | None, faults: str | None) -> Any:
+def sensor_config(sc: Any, sensors: str | None, faults: str | None) -> Any:
     from harness.sensors import load_sensor_config
 
     return load_sensor_config(sensors or sc.sensors, sc.sensor_overrides, faults)
@@ -115,7 +115,7 @@ def _observer_run_dict(run: Any) -> dict[str, Any]:
 
 
 @dataclass(frozen=True)
-class _SkippedRun:
+class SkippedRun:
     status: str
     us_per_step: float = math.nan
     certified: bool | None = None
@@ -124,7 +124,7 @@ class _SkippedRun:
 
 
 @dataclass(frozen=True, eq=False)
-class _FailedTruth:
+class FailedTruth:
     """Stands in for a ``Truth`` when the simulation raised: empty, with the error as status."""
 
     status: str
@@ -178,18 +178,77 @@ def run_scenario(task: ScenarioTask) -> ScenarioOutcome:
     return outcome
 
 
-def compute_scenario(task: ScenarioTask) -> tuple[ScenarioOutcome, RenderJob | None]:
-    """Everything but the render; returns the render job (None if ``task.render`` is off)."""
+ESTIMATE_COLUMNS = ["t_s", "observer", "state", "value", "lo", "hi", "var"]
+
+
+@dataclass(frozen=True, eq=False)
+class Stages:
+    """What the stages of one scenario produced, before anything is written or scored.
+
+    ``runs`` is None when no observer ran: the simulation failed (``truth.ok`` is False) or a later
+    stage crashed (``error`` holds its one-line ``error: …`` status, ``traceback`` the details).
+    """
+
+    truth: Any
+    measurements: Any | None
+    estimates: pd.DataFrame
+    runs: dict[str, Any] | None
+    error: str | None = None
+    traceback: str | None = None
+
+
+def evaluate_scenario(sc: Any, vehicle: Any, observers: Sequence[str], sim_seed: int, sensor_seed: int, *,
+                      sensors: str | None = None, faults: str | None = None,
+                      timings: dict[str, float] | None = None) -> Stages:
+    """Simulate, sense and estimate one prepared scenario (the shared core of ``run`` and ``stress``).
+
+    Bad input (``InputError``) propagates; any other crash is returned as a status, so one broken
+    scenario never stops a suite. ``timings`` (if given) receives the simulate/sensors/observers seconds.
+    """
     from harness.estimate import run_observers
-    from harness.render import RenderSource
-    from harness.scoring import score
     from harness.sensors import emulate
     from harness.simulate import simulate
+
+    timings = timings if timings is not None else {}
+    empty = pd.DataFrame(columns=ESTIMATE_COLUMNS)
+    t = time.perf_counter()
+    try:
+        truth = simulate(sc, seed=sim_seed)
+    except InputError:
+        raise
+    except Exception as e:  # reported with its traceback; the suite goes on
+        status = f"error: {type(e).__name__}: {e}".splitlines()[0]
+        return Stages(FailedTruth(status=status), None, empty, None, status, traceback.format_exc())
+    finally:
+        timings["simulate"] = time.perf_counter() - t
+    if not truth.ok:
+        return Stages(truth, None, empty, None)
+    meas = None
+    try:
+        t = time.perf_counter()
+        meas = emulate(truth.frame, vehicle, sensor_config(sc, sensors, faults), sensor_seed,
+                       outages=sc.outages, lane_gaps=sc.lane_gaps)
+        timings["sensors"] = time.perf_counter() - t
+        t = time.perf_counter()
+        estimates, runs = run_observers(meas.frame, vehicle, list(observers))
+        timings["observers"] = time.perf_counter() - t
+    except InputError:
+        raise
+    except Exception as e:  # one broken stage must not stop the suite
+        status = f"error: {type(e).__name__}: {e}".splitlines()[0]
+        return Stages(truth, meas, empty, None, status, traceback.format_exc())
+    return Stages(truth, meas, estimates, runs)
+
+
+def compute_scenario(task: ScenarioTask) -> tuple[ScenarioOutcome, RenderJob | None]:
+    """Everything but the render; returns the render job (None if ``task.render`` is off)."""
+    from harness.render import RenderSource
+    from harness.scoring import score
 
     timings = dict.fromkeys(STAGES, 0.0)
     folder = task.run_dir / task.name
     folder.mkdir(parents=True, exist_ok=True)
-    sc = _prepare_scenario(task.name, task.vehicle, task.friction)
+    sc = prepare_scenario(task.name, task.vehicle, task.friction)
     veh = sc.vehicle_params()
     ss, sim_seed, sensor_seed = scenario_seeds(sc.seed, task.name, task.seed)
     entry: dict[str, Any] = {
@@ -200,46 +259,29 @@ def compute_scenario(task: ScenarioTask) -> tuple[ScenarioOutcome, RenderJob | N
         "simulation_seed": sim_seed, "sensor_seed": sensor_seed, "status": "ok",
     }
 
-    t = time.perf_counter()
-    try:
-        truth = simulate(sc, seed=sim_seed)
-    except InputError:
-        raise
-    except Exception as e:  # a crash of one scenario is reported with its traceback; the suite goes on
-        truth = _FailedTruth(status=f"error: {type(e).__name__}: {e}")
-        entry["traceback"] = traceback.format_exc()
-    timings["simulate"] = time.perf_counter() - t
-    entry["status"] = str(truth.status)
+    st = evaluate_scenario(sc, veh, task.observers, sim_seed, sensor_seed, sensors=task.sensors,
+                           faults=task.faults, timings=timings)
+    truth = st.truth
+    entry["status"] = st.error if (st.error and truth.ok) else str(truth.status)
     entry["sim_steps"] = len(truth.frame)
+    if st.traceback:
+        entry["traceback"] = st.traceback
 
     t = time.perf_counter()
     write_csv(truth.at_rate(task.log_rate_hz), folder / "truth.csv")
     write_json(events_list(truth.events), folder / "events.json")
     write_json(scenario_info(sc, veh), folder / "scenario.json")
+    if st.measurements is not None:
+        write_csv(st.measurements.frame, folder / "measurements.csv")
     timings["write"] += time.perf_counter() - t
 
-    runs: dict[str, Any]
-    estimates = pd.DataFrame(columns=["t_s", "observer", "state", "value", "lo", "hi", "var"])
-    if not truth.ok:
-        runs = {o: _SkippedRun(status=f"skipped: simulation {truth.status}") for o in task.observers}
+    estimates = st.estimates
+    if st.runs is not None:
+        runs = st.runs
+    elif not truth.ok:
+        runs = {o: SkippedRun(status=f"skipped: simulation {truth.status}") for o in task.observers}
     else:
-        try:
-            t = time.perf_counter()
-            cfg = _sensor_config(sc, task.sensors, task.faults)
-            meas = emulate(truth.frame, veh, cfg, sensor_seed, outages=sc.outages, lane_gaps=sc.lane_gaps)
-            timings["sensors"] = time.perf_counter() - t
-            t = time.perf_counter()
-            write_csv(meas.frame, folder / "measurements.csv")
-            timings["write"] += time.perf_counter() - t
-            t = time.perf_counter()
-            estimates, runs = run_observers(meas.frame, veh, list(task.observers))
-            timings["observers"] = time.perf_counter() - t
-        except InputError:
-            raise
-        except Exception as e:  # one broken stage must not stop the suite
-            entry["status"] = f"error: {type(e).__name__}: {e}"
-            entry["traceback"] = traceback.format_exc()
-            runs = {o: _SkippedRun(status=f"skipped: {entry['status']}") for o in task.observers}
+        runs = {o: SkippedRun(status=f"skipped: {st.error}") for o in task.observers}
 
     t = time.perf_counter()
     metrics = score(truth.frame, estimates, scenario=task.name, runs=runs, mass_kg=veh.mass_kg)
@@ -278,7 +320,7 @@ def _render_line(o: ScenarioOutcome) -> str:
     return f"{o.name}: rendered {r.get('n_rendered', 0)} frames in {o.timings.get('render', 0.0):.1f} s"
 
 
-def _pool(workers: int) -> ProcessPoolExecutor:
+def process_pool(workers: int) -> ProcessPoolExecutor:
     """Worker processes that start from a fresh interpreter (forkserver on Linux, spawn elsewhere).
 
     Never plain fork: a process that has made an OpenGL (EGL) context, e.g. a test session that
@@ -294,10 +336,10 @@ def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress) -> Iter
     With ``jobs > 1`` each worker process runs whole scenarios, renders included. Otherwise the main
     process simulates, senses, estimates and scores one scenario after the other while renders (the
     slowest stage with software GL) run in two background processes, so a 2-core machine is used
-    even without ``--jobs``. The main process itself never renders (see ``_pool``).
+    even without ``--jobs``. The main process itself never renders (see ``process_pool``).
     """
     if jobs > 1 and len(tasks) > 1:
-        with _pool(min(jobs, len(tasks))) as pool:
+        with process_pool(min(jobs, len(tasks))) as pool:
             futures = [pool.submit(run_scenario, task) for task in tasks]
             for fut in as_completed(futures):
                 o = fut.result()
@@ -312,7 +354,7 @@ def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress) -> Iter
             progress.item(_line(o))
             yield o
         return
-    with _pool(min(2, len(tasks))) as renderer:
+    with process_pool(min(2, len(tasks))) as renderer:
         pending: list[tuple[ScenarioOutcome, Future | None]] = []
         for task in tasks:
             o, job = compute_scenario(task)
@@ -344,9 +386,9 @@ def _resolve(scenarios: list[str] | None, suite_name: str, observers: list[str] 
 
     names = list(dict.fromkeys(scenarios)) if scenarios else suite(suite_name)
     for n in names:
-        sc = _prepare_scenario(n, vehicle, friction)
+        sc = prepare_scenario(n, vehicle, friction)
         sc.vehicle_params()
-        _sensor_config(sc, sensors, faults)
+        sensor_config(sc, sensors, faults)
     known = available_observers()
     chosen = list(dict.fromkeys(observers)) if observers else list(known)
     unknown = [o for o in chosen if o not in known]
@@ -462,9 +504,9 @@ def simulate_to_dir(
     from harness.simulate import simulate
 
     check_log_rate(log_rate_hz)
-    sc = _prepare_scenario(scenario, vehicle, friction)
+    sc = prepare_scenario(scenario, vehicle, friction)
     veh = sc.vehicle_params()
-    cfg = _sensor_config(sc, sensors, faults)
+    cfg = sensor_config(sc, sensors, faults)
     ss, sim_seed, sensor_seed = scenario_seeds(sc.seed, sc.name, seed)
     timings: dict[str, float] = {}
     with atomic_output_dir(out) as tmp:

@@ -167,14 +167,18 @@ def _peak(frame: pd.DataFrame, column: str) -> float:
 def run_case(case: StressCase) -> CaseResult:
     """Simulate, sense, estimate and score one case; never raises (a crash becomes ``error: …`` rows).
 
-    The stage calls are those of :func:`harness.pipeline.compute_scenario` minus its file writing
-    (a sweep keeps metrics only).
+    The stages are :func:`harness.pipeline.evaluate_scenario`, shared with ``run``; a sweep keeps
+    metrics only and writes no per-case files.
     """
-    from harness.estimate import run_observers
-    from harness.pipeline import _FailedTruth, _prepare_scenario, _sensor_config, _SkippedRun, scenario_seeds
+    from harness.pipeline import (
+        ESTIMATE_COLUMNS,
+        FailedTruth,
+        SkippedRun,
+        evaluate_scenario,
+        prepare_scenario,
+        scenario_seeds,
+    )
     from harness.scoring import score
-    from harness.sensors import emulate
-    from harness.simulate import simulate
 
     t0 = time.perf_counter()
     friction = None if case.friction == SCENARIO_FRICTION else case.friction
@@ -182,28 +186,30 @@ def run_case(case: StressCase) -> CaseResult:
     tb = None
     mu = math.nan
     mass = None
-    truth: Any = _FailedTruth(status="error: not simulated")
-    estimates = pd.DataFrame(columns=["t_s", "observer", "state", "value", "lo", "hi", "var"])
+    truth: Any = FailedTruth(status="error: not simulated")
+    estimates = pd.DataFrame(columns=ESTIMATE_COLUMNS)
     runs: dict[str, Any]
     try:
-        sc = _prepare_scenario(case.scenario, None, friction)
+        sc = prepare_scenario(case.scenario, None, friction)
         mu = _mu_label(sc)
         veh = sc.vehicle_params()
         mass = veh.mass_kg
         _, sim_seed, sensor_seed = scenario_seeds(sc.seed, case.scenario, case.seed)
-        truth = simulate(sc, seed=sim_seed)
-        if truth.ok:
-            cfg = _sensor_config(sc, None, faults)
-            meas = emulate(truth.frame, veh, cfg, sensor_seed, outages=sc.outages, lane_gaps=sc.lane_gaps)
-            estimates, runs = run_observers(meas.frame, veh, list(case.observers))
+        st = evaluate_scenario(sc, veh, case.observers, sim_seed, sensor_seed, faults=faults)
+        truth, estimates, tb = st.truth, st.estimates, st.traceback
+        if st.runs is not None:
+            runs = st.runs
+        elif st.error:  # a crashed stage marks the whole case (its truth is not trusted either)
+            truth = FailedTruth(status=st.error)
+            runs = {o: SkippedRun(status=st.error) for o in case.observers}
         else:
-            runs = {o: _SkippedRun(status=f"skipped: simulation {truth.status}") for o in case.observers}
+            runs = {o: SkippedRun(status=f"skipped: simulation {truth.status}") for o in case.observers}
     except Exception as e:  # one broken case must not stop the sweep (inputs were validated up front)
         status = f"error: {type(e).__name__}: {e}".splitlines()[0]
         tb = traceback.format_exc()
         if truth.ok:
-            truth = _FailedTruth(status=status)
-        runs = {o: _SkippedRun(status=status) for o in case.observers}
+            truth = FailedTruth(status=status)
+        runs = {o: SkippedRun(status=status) for o in case.observers}
     metrics = score(truth.frame, estimates, scenario=case.scenario, runs=runs, mass_kg=mass)
     head = {"case": case.index, "friction": case.friction, "mu": mu, "faults": case.faults,
             "seed_index": case.seed_index, "seed": case.seed, "truth_status": str(truth.status),
@@ -229,13 +235,13 @@ def build_cases(scenarios: list[str], frictions: list[str], faults: list[str], s
 # ---- execution -----------------------------------------------------------------------------------
 
 def _run_local(cases: list[StressCase], jobs: int) -> Iterator[CaseResult]:
-    from harness.pipeline import _pool
+    from harness.pipeline import process_pool
 
     if jobs <= 1 or len(cases) <= 1:
         for c in cases:
             yield run_case(c)
         return
-    with _pool(min(jobs, len(cases))) as pool:
+    with process_pool(min(jobs, len(cases))) as pool:
         for fut in as_completed([pool.submit(run_case, c) for c in cases]):
             yield fut.result()
 
@@ -277,18 +283,18 @@ def _run_dask(cases: list[StressCase], address: str, jobs: int, info: dict[str, 
 def _resolve(scenarios: list[str] | None, suite_name: str, observers: list[str] | None,
              frictions: list[str], faults: list[str]) -> tuple[list[str], list[str]]:
     """Scenario and observer names, with every (scenario, friction) and (scenario, faults) checked."""
-    from harness.pipeline import _prepare_scenario, _sensor_config
     from harness.pipeline import _resolve as resolve_run
+    from harness.pipeline import prepare_scenario, sensor_config
 
     names, chosen = resolve_run(scenarios, suite_name, observers, None, None, None, None)
     if not names:
         raise StressSpecError(f"suite {suite_name!r} has no scenarios", field="--suite")
     for n in names:
         for fr in frictions:
-            _prepare_scenario(n, None, None if fr == SCENARIO_FRICTION else fr)
-        sc = _prepare_scenario(n, None, None)
+            prepare_scenario(n, None, None if fr == SCENARIO_FRICTION else fr)
+        sc = prepare_scenario(n, None, None)
         for fa in faults:
-            _sensor_config(sc, None, None if fa == NO_FAULTS else fa)
+            sensor_config(sc, None, None if fa == NO_FAULTS else fa)
     return names, chosen
 
 
