@@ -1,6 +1,6 @@
 """Driver models: open-loop steering profiles, a preview path follower, speed control, a lead car.
 
-A scenario's ``driver:`` and ``lead:`` blocks (docs/helpers/SCENARIO_SCHEMA.md) are parsed here into
+A scenario's ``driver:`` and ``lead:`` blocks (docs/SCENARIOS.md) are parsed here into
 frozen specs. Open-loop steering and speed targets are precomputed on the simulation time grid
 (vectorised); the closed-loop parts (rate limiter, path follower, PI speed controller, time-gap
 follower) are scalar ``numba`` functions called from the compiled stepping loop of

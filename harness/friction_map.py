@@ -256,7 +256,7 @@ def _patch(data: Any, source: str, prefix: str) -> Patch:
 
 
 def parse_friction(data: Any, source: str, prefix: str = "friction") -> FrictionMap:
-    """Validate a ``friction:`` block (see docs/helpers/SCENARIO_SCHEMA.md) and build the map.
+    """Validate a ``friction:`` block (see docs/SCENARIOS.md) and build the map.
 
     ``data`` is the mapping ``{mu_default | surface, patches}``; errors name ``source`` and the field.
     """
