@@ -36,6 +36,7 @@ CANONICAL: dict[str, tuple[str, str]] = {
     "psi_lane_rad": ("rad", "heading relative to the lane at look-ahead l_s"),
     "range_m": ("m", "range to the lead vehicle"),
     "range_rate_mps": ("m/s", "range rate to the lead vehicle"),
+    "lead_accel_mps2": ("m/s^2", "lead vehicle's longitudinal acceleration along its path, dv_lead/dt"),
 }
 for _w in WHEELS:
     CANONICAL[f"fz_{_w}_N"] = ("N", f"normal load, {_w}")
@@ -50,7 +51,7 @@ for _w in WHEELS:
 ESTIMABLE: tuple[str, ...] = (
     "beta_rad", "vy_mps", "vx_mps", "yaw_rate_radps", "alpha_f_rad", "alpha_r_rad",
     "fy_f_N", "fy_r_N", "rho_1pm", "y_lane_m", "psi_lane_rad", "range_m", "range_rate_mps",
-    "roll_rad", "ax_mps2", "ay_mps2", "x_m", "y_m", "psi_rad",
+    "lead_accel_mps2", "roll_rad", "ax_mps2", "ay_mps2", "x_m", "y_m", "psi_rad",
     *(f"mu_{w}" for w in WHEELS), *(f"fy_{w}_N" for w in WHEELS), *(f"fx_{w}_N" for w in WHEELS),
 )
 

@@ -46,6 +46,7 @@ from harness.road import road_project
 from harness.signals import WHEELS
 from harness.tire import _combined, jit, radial_load_kernel, relax_kernel, shape_array
 from harness.truth import RAW_COLUMNS, RAW_INDEX, Truth, build_frame
+from harness.truth_events import detect_events
 from harness.vehicle import G, VehicleParams, load_vehicle
 
 MIN_START_SPEED_MPS = 3.0
@@ -73,6 +74,7 @@ C_DFL, C_DFR, C_CMD = RAW_INDEX["delta_fl_rad"], RAW_INDEX["delta_fr_rad"], RAW_
 C_TD, C_TB = RAW_INDEX["drive_torque_Nm"], RAW_INDEX["brake_torque_Nm"]
 C_S, C_RHO, C_YL, C_PL = RAW_INDEX["s_m"], RAW_INDEX["rho_1pm"], RAW_INDEX["y_lane_m"], RAW_INDEX["psi_lane_rad"]
 C_LX, C_LY, C_LV = RAW_INDEX["lead_x_m"], RAW_INDEX["lead_y_m"], RAW_INDEX["lead_v_mps"]
+C_LA = RAW_INDEX["lead_accel_mps2"]
 C_RANGE, C_RR = RAW_INDEX["range_m"], RAW_INDEX["range_rate_mps"]
 C_FZ, C_FY, C_FX = RAW_INDEX["fz_fl_N"], RAW_INDEX["fy_fl_N"], RAW_INDEX["fx_fl_N"]
 C_ALPHA, C_KAPPA, C_MU, C_OMEGA = (RAW_INDEX["alpha_fl_rad"], RAW_INDEX["kappa_fl"], RAW_INDEX["mu_fl"],
@@ -170,10 +172,10 @@ def _run(step1: Any, step2: Any, m_ptr: int, d_ptr: int, k0: int, k1: int, par: 
             vbx = vwx - r * par[P_BUMPER] * spsi
             vby = vwy + r * par[P_BUMPER] * cpsi
             row[C_RR] = (lv * math.cos(lpsi) - vbx) * ux + (lv * math.sin(lpsi) - vby) * uy
-            row[C_LX], row[C_LY], row[C_LV] = lx, ly, lv
+            row[C_LX], row[C_LY], row[C_LV], row[C_LA] = lx, ly, lv, lead[k, 4]
         else:
             row[C_RR] = math.nan
-            row[C_LX], row[C_LY], row[C_LV] = math.nan, math.nan, math.nan
+            row[C_LX], row[C_LY], row[C_LV], row[C_LA] = math.nan, math.nan, math.nan, math.nan
         row[C_RANGE] = rng
         # ---- driver: steering ------------------------------------------------------------------------
         if ip[I_STEER_MODE] == 0:
@@ -311,13 +313,21 @@ def _resolve_vehicle(scenario: Any, vehicle: VehicleParams | str | None) -> Vehi
 
 
 def _lead_track(scenario: Any, v: VehicleParams, t: np.ndarray) -> np.ndarray:
-    """(n, 4) lead [x, y, psi, v] on the time grid (kinematic, on the road centre line)."""
-    out = np.full((t.shape[0], 4), np.nan)
+    """(n, 5) lead [x, y, psi, v, a] on the time grid (kinematic, on the road centre line).
+
+    ``a`` [m/s^2] is the exact derivative of the piecewise-linear speed profile: the slope of the
+    segment holding ``t`` (right-continuous at a breakpoint), 0 outside the points.
+    """
+    out = np.full((t.shape[0], 5), np.nan)
     if scenario.lead is None:
         return out
     s = scenario.lead.path_coordinate(t, v.lf_m)
     x, y, psi = scenario.road.pose_at(s)
     out[:, 0], out[:, 1], out[:, 2], out[:, 3] = x, y, psi, scenario.lead.speed(t)
+    pts = np.asarray(scenario.lead.speed_points, dtype=np.float64)
+    slopes = np.append(np.diff(pts[:, 1]) / np.diff(pts[:, 0]), 0.0)
+    seg = np.searchsorted(pts[:, 0], t, side="right") - 1
+    out[:, 4] = np.where(seg >= 0, slopes[np.clip(seg, 0, None)], 0.0)
     return out
 
 
@@ -465,6 +475,15 @@ def simulate(scenario: Any, vehicle: VehicleParams | str | None = None, seed: in
         status_t = float(k_end * dt_s)
         status = f"diverged: {DIVERGENCE_CAUSES[code]} at t={status_t:.3f} s"
     frame = build_frame(log[:k_end], v.lf_m, v.lr_m)
+    # What the car did, found on the finished frame (harness.truth_events); road-relative checks
+    # only where the driver follows the road (an open-loop profile leaves the nominal road by design).
+    happened = detect_events(frame, fz_static_N=g.fz_static, road=scenario.road if drv.closed_loop_steer else None,
+                             half_track_m=0.5 * v.track_f_m,
+                             divergence=None if code == 0 else (status_t, DIVERGENCE_CAUSES[code]))
     events = _events(scenario, log[:k_end, C_MU:C_MU + 4], t[:k_end], status_t, status)
+    # The roll-over is already there as the simulator's divergence event.
+    events = tuple(sorted([*events, *((e.t_s, e.label) for e in happened if e.kind != "rolled over")],
+                          key=lambda e: e[0]))
     return Truth(scenario=scenario, vehicle=v, seed=int(scenario.seed if seed is None else seed), dt_s=dt_s,
-                 frame=frame, qpos=qlog[:k_end], model_xml=xml, status=status, events=events)
+                 frame=frame, qpos=qlog[:k_end], model_xml=xml, status=status, events=events,
+                 truth_events=happened)

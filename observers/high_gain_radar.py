@@ -33,15 +33,16 @@ globally Lipschitz with the certified ``k_f``. A zero-order hold (``first_order_
 an intra-sample ripple: on the seed model at 100 Hz it biases ``a_L`` by ~0.5 d' [m/s^2 per m/s].
 
 Samples and dropouts (NaN = no new sample): a range sample older than ``hold_s`` is not used (the L
-term is dropped: the thesis's "position lost"); the same for the range rate and the M term. Until
-the first range sample the observer holds its initial state ``(0, 0, 0)`` (no lead: it invents
-nothing); the first sample initialises ``d = range``, ``d' = range rate`` (0 if absent),
-``a_L = a_E``. Scenarios without a lead have NaN radar columns: the estimate stays at the initial
-state and the runner skips the scoring (truth range is NaN there). ``reset(t0, x0)`` with ``x0``
-(``range_m``, ``range_rate_mps``, ``lead_accel_mps2``) starts from ``x0`` instead.
+term is dropped: the thesis's "position lost"); the same for the range rate and the M term. The
+first range sample initialises ``d = range``, ``d' = range rate`` (0 if absent), ``a_L = a_E``.
+Before it the observer knows nothing of the lead and reports its placeholder initial state
+``(0, 0, 0)`` (it invents nothing; every track has one row per measurement row, and these rows are
+scored like any other: with a 50 ms radar latency they are the first five rows at 100 Hz).
+``reset(t0, x0)`` with ``x0`` (``range_m``, ``range_rate_mps``, ``lead_accel_mps2``) starts from
+``x0`` at ``t0`` instead.
 
-States scored: ``range_m``, ``range_rate_mps``. The lead acceleration (not a canonical state) is
-given by :meth:`HighGainRadarStandard.lead_accel_mps2`.
+States scored: ``range_m``, ``range_rate_mps`` and ``lead_accel_mps2`` (the lead's acceleration
+``a_L``, the state these observers exist for; truth: the kinematic lead's dv/dt).
 """
 
 from __future__ import annotations
@@ -85,7 +86,7 @@ class HighGainRadarStandard(ScalarLoopObserver):
     citation = ("H. Bessafa, PhD thesis, Univ. Lorraine 2024, Thm 4.3.1, eqs. (4.15)-(4.21); "
                 "application sec. 5.2 (5.1)-(5.3)")
     inputs = ("range_m", "range_rate_mps", "vx_mps", "ax_mps2")
-    states = ("range_m", "range_rate_mps")
+    states = ("range_m", "range_rate_mps", "lead_accel_mps2")
     variant = "standard"
     uses_rate = False
     default_options = dict(_COMMON)
@@ -180,15 +181,6 @@ class HighGainRadarStandard(ScalarLoopObserver):
         self._slope_z = 0.0
         self._slope_e = 0.0  # slope of the ego acceleration samples [m/s^3]
 
-    def _internal_from_x0(self, z: list[float], x0: Mapping[str, float]) -> list[float]:
-        """``range_m``, ``range_rate_mps`` and also ``lead_accel_mps2`` (the third internal state)."""
-        rest = dict(x0)
-        a_lead = rest.pop("lead_accel_mps2", None)
-        z = super()._internal_from_x0(z, rest)
-        if a_lead is not None:
-            z[2] = float(a_lead)
-        return z
-
     def reset(self, t0_s: float, x0: Mapping[str, float] | None = None) -> None:
         """Start at ``t0_s`` [s]; with ``x0`` the observer starts from it instead of the first sample."""
         super().reset(t0_s, x0)
@@ -280,10 +272,10 @@ class HighGainRadarStandard(ScalarLoopObserver):
         return self._lm
 
     def _values(self) -> list[float]:
-        return [self._z[0], self._z[1]]
+        return [self._z[0], self._z[1], self._z[2]]
 
     def lead_accel_mps2(self) -> float:
-        """Current estimate of the lead vehicle's acceleration ``a_L`` [m/s^2] (third state; not scored)."""
+        """Current estimate of the lead vehicle's acceleration ``a_L`` [m/s^2] (the third state)."""
         return self._z[2]
 
     def internal_state(self) -> tuple[float, float, float]:

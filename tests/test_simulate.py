@@ -48,7 +48,7 @@ def test_frame_has_every_canonical_signal_and_extras(step_1deg) -> None:
     for name in ("wx_body_radps", "dwz_body_radps2", "az_body_mps2", "vz_mps", "s_m", "lead_x_m", "steer_cmd_rad",
                  "drive_torque_Nm", "brake_torque_Nm"):
         assert name in f.columns, name
-    no_lead = {"range_m", "range_rate_mps", "lead_x_m", "lead_y_m", "lead_v_mps"}
+    no_lead = {"range_m", "range_rate_mps", "lead_x_m", "lead_y_m", "lead_v_mps", "lead_accel_mps2"}
     assert np.isfinite(f.drop(columns=list(no_lead)).to_numpy()).all()
     assert f.range_m.isna().all()
     assert step_1deg.qpos.shape == (4001, 17)
