@@ -255,6 +255,7 @@ def compute_scenario(task: ScenarioTask) -> tuple[ScenarioOutcome, RenderJob | N
         "name": task.name, "description": sc.description, "tags": list(sc.tags), "vehicle": veh.name,
         "duration_s": sc.duration_s, "sensors": task.sensors or sc.sensors,
         "seed": task.seed if task.seed is not None else sc.seed,
+    from harness.truth_events import scored_until_of, status_of
         "entropy": str(ss.entropy), "spawn_key": list(ss.spawn_key),
         "simulation_seed": sim_seed, "sensor_seed": sensor_seed, "status": "ok",
     }
@@ -277,6 +278,11 @@ def compute_scenario(task: ScenarioTask) -> tuple[ScenarioOutcome, RenderJob | N
 
     estimates = st.estimates
     if st.runs is not None:
+    # What the car did (spun out, left the road, ...) and where scoring stops because of it.
+    scored_until = scored_until_of(truth)
+    entry["truth_status"] = status_of(truth)
+    entry["truth_events"] = [e.to_dict() for e in getattr(truth, "truth_events", ())]
+    entry["scored_until_s"] = scored_until
         runs = st.runs
     elif not truth.ok:
         runs = {o: SkippedRun(status=f"skipped: simulation {truth.status}") for o in task.observers}
@@ -284,7 +290,8 @@ def compute_scenario(task: ScenarioTask) -> tuple[ScenarioOutcome, RenderJob | N
         runs = {o: SkippedRun(status=f"skipped: {st.error}") for o in task.observers}
 
     t = time.perf_counter()
-    metrics = score(truth.frame, estimates, scenario=task.name, runs=runs, mass_kg=veh.mass_kg)
+    metrics = score(truth.frame, estimates, scenario=task.name, runs=runs, mass_kg=veh.mass_kg,
+                    scored_until_s=scored_until)
     timings["scoring"] = time.perf_counter() - t
 
     t = time.perf_counter()

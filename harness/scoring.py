@@ -17,6 +17,31 @@ sample is still outside. Bands (:func:`convergence_band`): beta, slip angles and
 the car's weight m*g (axle and wheel forces alike); friction coefficients 0.05; positions 0.5 m;
 accelerations 0.2 m/s^2; curvature 1e-3 1/m. A caller may override any band via ``bands``.
 
+Scored window
+-------------
+Scoring stops where the truth says the car did something no observer can be blamed for: the first
+spin-out or roll-over (``harness.truth_events.scoring_end_s``; passed in as ``scored_until_s``).
+Truth rows at or after that time are not scored; ``scored_until_s`` in every row says where the
+window ends (the last truth time when nothing happened) and ``n_scored`` how many rows it holds.
+
+Usable or not
+-------------
+An ``ok`` observer whose estimate is not usable over the scored window gets another status (the
+precedence is error > diverged > saturated > ok; ``skipped`` is carried as it is):
+
+* ``diverged (no estimate for x % of the time)`` if its value is NaN for more than
+  ``MAX_MISSING_FRACTION`` of the scored time (a non-finite estimate already means ``diverged``
+  for ``harness.estimate``);
+* ``saturated (x % of the time)`` if a state sits on one of the observer's declared state bounds
+  (``Observer.state_bounds``, e.g. the ±0.5 rad sideslip projection of the EKF/UKF) for more than
+  ``MAX_SATURATED_FRACTION`` of the scored time. "On the bound" is ``value <= lo + tol`` or
+  ``value >= hi - tol`` with ``tol = BOUND_TOL * max(1, |bound|)``. A bounded estimate can never pass
+  ``harness.estimate.ABSURD_LIMITS`` when its bound lies inside them; sitting on the bound is its
+  way of being absurd, and this is the check that sees it.
+
+Fractions are time-weighted and taken per state; the observer's status uses its worst state and is
+written in all its rows.
+
 Intervals and variances
 -----------------------
 Where an observer gives bounds (``lo``/``hi`` finite), ``coverage`` is the fraction of scored
@@ -52,11 +77,18 @@ METRIC_COLUMNS: tuple[str, ...] = (
     "nees_mean", "nees_in_band",
 )
 RUN_COLUMNS: tuple[str, ...] = ("us_per_step", "certified", "status")
-EXTRA_COLUMNS: tuple[str, ...] = ("conv_band", "n_scored")
+EXTRA_COLUMNS: tuple[str, ...] = ("conv_band", "n_scored", "scored_until_s")
 COLUMNS: tuple[str, ...] = KEY_COLUMNS + METRIC_COLUMNS + RUN_COLUMNS + EXTRA_COLUMNS
 
 #: Time tolerance when holding estimates onto truth times (float rounding of t = k * dt).
 TIME_TOL_S = 1e-9
+#: An estimate on a state bound for more than this fraction of the scored time is ``saturated``:
+#: a filter held by its constraint 1 step in 20 is reporting the constraint, not the car.
+MAX_SATURATED_FRACTION = 0.05
+#: An estimate missing (NaN) for more than this fraction of the scored time is not usable either.
+MAX_MISSING_FRACTION = 0.05
+#: Relative tolerance of "on the bound" (a projected estimate lands on it to rounding, ~1e-16).
+BOUND_TOL = 1e-6
 
 DEG = math.pi / 180.0
 
@@ -273,6 +305,47 @@ def align(
 
 # ---- the scorer ----------------------------------------------------------------------------
 
+def bound_fraction(a: Aligned, bounds: tuple[float, float]) -> float:
+    """Fraction of the scored time ``a`` sits on (or past) ``bounds = (lo, hi)``; NaN if nothing is scored."""
+    total = float(np.sum(a.dt_s))
+    if not total > 0.0:
+        return math.nan
+    lo, hi = float(bounds[0]), float(bounds[1])
+    finite = [abs(b) for b in (lo, hi) if math.isfinite(b)]
+    tol = BOUND_TOL * max([1.0, *finite])
+    with np.errstate(invalid="ignore"):
+        on = (a.value <= lo + tol) | (a.value >= hi - tol)
+    return float(np.sum(a.dt_s * on)) / total
+
+
+def missing_fraction(a: Aligned) -> float:
+    """Fraction of the scored time without a (finite) estimate; NaN if nothing is scored."""
+    total = float(np.sum(a.dt_s))
+    if not total > 0.0:
+        return math.nan
+    return float(np.sum(a.dt_s * ~np.isfinite(a.value))) / total
+
+
+def _percent(fraction: float) -> str:
+    p = 100.0 * fraction
+    return f"{p:.1f}" if p < 10.0 else f"{p:.0f}"
+
+
+def usability_status(status: str, missing: float, saturated: float) -> str:
+    """The status of an observer given the worst missing and on-bound fractions of its states.
+
+    Only ``ok`` is overridden (error, diverged and skipped stay); missing estimates come before
+    saturation (a gap is worse than a pinned value). NaN fractions (nothing scored) change nothing.
+    """
+    if not status.startswith("ok"):
+        return status
+    if missing > MAX_MISSING_FRACTION:
+        return f"diverged (no estimate for {_percent(missing)} % of the time)"
+    if saturated > MAX_SATURATED_FRACTION:
+        return f"saturated ({_percent(saturated)} % of the time)"
+    return status
+
+
 def _nan_metrics() -> dict[str, float]:
     return dict.fromkeys(METRIC_COLUMNS, math.nan)
 
@@ -301,6 +374,16 @@ def _declared_states(observer: str) -> tuple[str, ...]:
     return tuple(states or ())
 
 
+def _declared_bounds(observer: str) -> Mapping[str, tuple[float, float]]:
+    """``state_bounds`` of a registered observer class ({} when unknown or undeclared)."""
+    try:
+        from observers.registry import observer_class
+
+        return dict(getattr(observer_class(observer), "state_bounds", {}) or {})
+    except Exception:  # an unknown name (a synthetic or replayed run) or a broken plugin: no bounds
+        return {}
+
+
 def _get(obj: Any, key: str) -> Any:
     return obj.get(key) if isinstance(obj, Mapping) else getattr(obj, key, None)
 
@@ -322,6 +405,8 @@ def score(
     runs: Mapping[str, ObserverRunLike],
     bands: Mapping[str, float] | None = None,
     mass_kg: float | None = None,
+    scored_until_s: float | None = None,
+    state_bounds: Mapping[str, Mapping[str, tuple[float, float]]] | None = None,
 ) -> pd.DataFrame:
     """Score every observer on every state it estimates.
 
@@ -341,6 +426,12 @@ def score(
         Overrides of the convergence bands (state unit).
     mass_kg : float, optional
         Vehicle mass for the force bands; taken from the truth's normal loads if not given.
+    scored_until_s : float, optional
+        End of the scored window [s] (truth rows at or after it are not scored), e.g. the truth's
+        first spin-out; None scores the whole record.
+    state_bounds : {observer: {state: (lo, hi)}}, optional
+        Each observer's declared state bounds for the saturation check; by default the
+        ``state_bounds`` of its registered class.
 
     Returns
     -------
@@ -351,6 +442,11 @@ def score(
     bands = dict(bands or {})
     mass = mass_kg if mass_kg is not None else _mass_from_truth(truth_frame)
     t_truth = truth_frame["t_s"].to_numpy(float) if "t_s" in truth_frame else np.empty(0)
+    window = np.ones(t_truth.size, bool) if scored_until_s is None else t_truth < float(scored_until_s) - TIME_TOL_S
+    t_scored = t_truth[window]
+    until = float(t_truth[-1]) if t_truth.size else math.nan
+    if scored_until_s is not None and t_truth.size:
+        until = min(float(scored_until_s), until)
     est = estimates_long if estimates_long is not None else pd.DataFrame(columns=["observer", "state"])
     observers = list(dict.fromkeys([*runs.keys(), *est["observer"].unique().tolist()]))
     groups = {k: g for k, g in est.groupby(["observer", "state"], sort=False)} if len(est) else {}
@@ -360,20 +456,33 @@ def score(
         run = runs.get(obs)
         carried = _run_fields(run)
         states = [s for (o, s) in groups if o == obs] or list(_declared_states(obs)) or [""]
+        declared = (state_bounds.get(obs, {}) if state_bounds is not None else _declared_bounds(obs))
+        obs_rows: list[dict[str, Any]] = []
+        missing, saturated = [], []
         for state in states:
             band = bands.get(state, convergence_band(state, mass_kg=mass))
             row: dict[str, Any] = {"scenario": name, "observer": obs, "state": state,
-                                   **_nan_metrics(), **carried, "conv_band": band, "n_scored": 0}
+                                   **_nan_metrics(), **carried, "conv_band": band, "n_scored": 0,
+                                   "scored_until_s": until}
             g = groups.get((obs, state))
             healthy = carried["status"].startswith("ok")
             if healthy and state and g is not None:
                 if state not in truth_frame.columns:
                     row["status"] = f"skipped: truth has no {state}"
                 else:
-                    a = align(t_truth, truth_frame[state].to_numpy(float), g, state, band)
+                    truth_values = truth_frame[state].to_numpy(float)[window]
+                    a = align(t_scored, truth_values, g, state, band)
                     row.update({k: f(a) for k, f in METRICS.items()})
                     row["n_scored"] = int(a.t_s.size)
+                    missing.append(missing_fraction(a))
+                    if state in declared:
+                        saturated.append(bound_fraction(a, declared[state]))
             elif healthy and state:
                 row["status"] = "skipped: no estimates"
-            rows.append(row)
+            obs_rows.append(row)
+        worst_missing = max((f for f in missing if math.isfinite(f)), default=math.nan)
+        worst_saturated = max((f for f in saturated if math.isfinite(f)), default=math.nan)
+        for row in obs_rows:
+            row["status"] = usability_status(str(row["status"]), worst_missing, worst_saturated)
+        rows.extend(obs_rows)
     return pd.DataFrame(rows, columns=list(COLUMNS))

@@ -46,6 +46,7 @@ from harness.road import road_project
 from harness.signals import WHEELS
 from harness.tire import _combined, jit, radial_load_kernel, relax_kernel, shape_array
 from harness.truth import RAW_COLUMNS, RAW_INDEX, Truth, build_frame
+from harness.truth_events import detect_events
 from harness.vehicle import G, VehicleParams, load_vehicle
 
 MIN_START_SPEED_MPS = 3.0
@@ -474,6 +475,15 @@ def simulate(scenario: Any, vehicle: VehicleParams | str | None = None, seed: in
         status_t = float(k_end * dt_s)
         status = f"diverged: {DIVERGENCE_CAUSES[code]} at t={status_t:.3f} s"
     frame = build_frame(log[:k_end], v.lf_m, v.lr_m)
+    # What the car did, found on the finished frame (harness.truth_events); road-relative checks
+    # only where the driver follows the road (an open-loop profile leaves the nominal road by design).
+    happened = detect_events(frame, fz_static_N=g.fz_static, road=scenario.road if drv.closed_loop_steer else None,
+                             half_track_m=0.5 * v.track_f_m,
+                             divergence=None if code == 0 else (status_t, DIVERGENCE_CAUSES[code]))
     events = _events(scenario, log[:k_end, C_MU:C_MU + 4], t[:k_end], status_t, status)
+    # The roll-over is already there as the simulator's divergence event.
+    events = tuple(sorted([*events, *((e.t_s, e.label) for e in happened if e.kind != "rolled over")],
+                          key=lambda e: e[0]))
     return Truth(scenario=scenario, vehicle=v, seed=int(scenario.seed if seed is None else seed), dt_s=dt_s,
-                 frame=frame, qpos=qlog[:k_end], model_xml=xml, status=status, events=events)
+                 frame=frame, qpos=qlog[:k_end], model_xml=xml, status=status, events=events,
+                 truth_events=happened)

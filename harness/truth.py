@@ -16,6 +16,7 @@ import pandas as pd
 
 from harness.errors import InputError
 from harness.signals import CANONICAL, WHEELS
+from harness.truth_events import TruthEvent, scoring_end_s, truth_status
 
 #: Per-wheel quantities; each is logged as four consecutive columns fl, fr, rl, rr.
 WHEEL_QUANTITIES: tuple[str, ...] = ("fz_{}_N", "fy_{}_N", "fx_{}_N", "alpha_{}_rad", "kappa_{}", "mu_{}",
@@ -88,7 +89,10 @@ class Truth:
     qpos : (n, nq) MuJoCo generalized positions per step (for renders).
     model_xml : MJCF that rebuilds the model (``mujoco.MjModel.from_xml_string``).
     status : ``"ok"`` or ``"diverged: <cause> at t=<t> s"`` (frame truncated there).
-    events : ((t_s, label), ...) sorted by time: the scenario's own plus the simulator's.
+    events : ((t_s, label), ...) sorted by time: the scenario's own, the simulator's and the truth
+        events' labels.
+    truth_events : what the car did (``harness.truth_events.TruthEvent``: spun out, left the road,
+        wheel lift, rolled over, stopped), sorted by time.
     """
 
     scenario: Any
@@ -100,10 +104,22 @@ class Truth:
     model_xml: str
     status: str
     events: tuple[tuple[float, str], ...]
+    truth_events: tuple[TruthEvent, ...] = ()
 
     @property
     def ok(self) -> bool:
+        """The simulation ran to the end (it may still have spun out: see ``truth_status``)."""
         return self.status == "ok"
+
+    @property
+    def truth_status(self) -> str:
+        """``ok`` or what the car did, e.g. ``spun out at t=3.41 s`` (``harness.truth_events``)."""
+        return truth_status(self.truth_events, self.status)
+
+    @property
+    def scored_until_s(self) -> float | None:
+        """Where scoring stops [s] (the first spin-out or roll-over), None if it runs to the end."""
+        return scoring_end_s(self.truth_events)
 
     def at_rate(self, hz: float) -> pd.DataFrame:
         """The frame decimated to ``hz`` (every k-th step; ``1/hz`` must be a multiple of ``dt_s``)."""

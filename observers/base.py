@@ -2,9 +2,10 @@
 
 An observer is one class. It declares ``name``, ``citation``, ``inputs`` (measurement columns of
 ARCHITECTURE "Measurements", in the order ``step`` receives them), ``states`` (canonical names of
-``harness.signals``), whether it gives bounds (``has_bounds``) or a covariance (``has_covariance``)
-and its ``default_options``. ``y`` passed to ``step`` is a float array ordered as ``inputs``; NaN
-means "no new sample": the observer predicts with the inputs it holds and does not correct.
+``harness.signals``), whether it gives bounds (``has_bounds``) or a covariance (``has_covariance``),
+its ``default_options`` and the hard limits it puts on its estimates (``state_bounds``). ``y`` passed
+to ``step`` is a float array ordered as ``inputs``; NaN means "no new sample": the observer predicts
+with the inputs it holds and does not correct.
 
 :class:`ScalarLoopObserver` is the base of the built-ins: it holds the latest value of every input
 (zero-order hold), works on Python floats and runs its loop without per-step allocation.
@@ -77,6 +78,11 @@ class Observer(ABC):
     has_covariance: ClassVar[bool] = False
     variant: ClassVar[str] = ""
     default_options: ClassVar[Mapping[str, Any]] = {}
+    #: Hard limits the observer imposes on its own estimates (projection, clipping), state ->
+    #: (lo, hi) in the state's unit; empty = none. Scoring reports an estimate that sits on one for
+    #: more than a small fraction of the time as ``saturated`` (``harness.scoring``): declare every
+    #: static clip here, or a pinned estimate passes as ``ok``.
+    state_bounds: ClassVar[Mapping[str, tuple[float, float]]] = {}
 
     def __init__(self, vehicle: VehicleParams, **options: Any) -> None:
         unknown = sorted(set(options) - set(self.default_options))

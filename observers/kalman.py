@@ -406,6 +406,10 @@ class _NonlinearBicycle(_BicycleFilter):
     """EKF/UKF shell: options, model and filter arrays; the step is a compiled kernel."""
 
     default_options = dict(_NONLINEAR_OPTIONS)
+    #: The projection onto |v_y| <= tan(beta_max) v_x pins the sideslip output atan2(v_y, v_x) at
+    #: +-beta_max exactly (same v_x); the yaw-rate face of the box moves with speed and is not a
+    #: static bound. ``_setup`` replaces this default by the instance's own ``beta_max_rad``.
+    state_bounds = {"beta_rad": (-_NONLINEAR_OPTIONS["beta_max_rad"], _NONLINEAR_OPTIONS["beta_max_rad"])}
     _kernel: Callable[..., tuple[float, float, float, float, float]]
 
     def _option(self, key: str, lo: float, hi: float) -> float:
@@ -420,6 +424,7 @@ class _NonlinearBicycle(_BicycleFilter):
         v = self.vehicle
         mu = self._option("mu", 0.05, 2.0)
         beta_max = self._option("beta_max_rad", 0.01, 1.5)
+        self.state_bounds = {"beta_rad": (-beta_max, beta_max)}
         margin = self._option("constraint_margin", 0.0, 10.0)
         gate = self._option("innovation_gate", 0.5, math.inf)
         self._model = model_array(v, mu)
