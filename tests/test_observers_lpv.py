@@ -58,9 +58,11 @@ def test_error_decays_at_certified_rate(vehicle_name: str, name: str) -> None:
     assert np.all(V <= V[0] * np.exp(-2 * sigma * t) * (1 + 1e-9) + 1e-30)
     if sigma > 0:
         assert V[-1] < V[0] * 1e-6
-    # started right, it tracks its own model; beta from the contract definitions is close
-    assert np.max(np.abs(good[:, :2] - alpha)) < 2e-3
-    assert np.max(np.abs(good[:, 2] - beta)) < 5e-3
+    # started right, it tracks its own model; beta from the contract definitions is close. The
+    # correct observers stay within 3.0e-4 / 2.3e-4 rad; without the a_x/v_x scheduling (theta2 = 0)
+    # the own-model error is 1.3e-3 / 0.9e-3 rad or more, so these bounds fail that mutant.
+    assert np.max(np.abs(good[:, :2] - alpha)) < 5e-4
+    assert np.max(np.abs(good[:, 2] - beta)) < 4e-4
 
 
 def test_neutral_steer_common_mode_is_unobservable() -> None:
