@@ -63,6 +63,26 @@ def _rate(text: str) -> float:
     return v
 
 
+class _CacheDirAction(argparse.Action):
+    """``--cache-dir DIR``: the caches (LMI designs, finished stress cases) for this command.
+
+    Applied as ``$ROADTRUTH_CACHE`` so that worker processes use the same folder.
+    """
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: object,
+                 option_string: str | None = None) -> None:
+        from harness.disk_cache import CACHE_ENV
+
+        path = Path(str(values)).expanduser()
+        if path.exists() and not path.is_dir():
+            parser.error(f"--cache-dir {values} is not a folder")
+        os.environ[CACHE_ENV] = str(path.resolve())
+        setattr(namespace, self.dest, str(path))
+
+
+_CACHE_HELP = "cache folder (default: $ROADTRUTH_CACHE, else the user cache folder)"
+
+
 # ---- commands -----------------------------------------------------------------------------------
 
 def _cmd_run(a: argparse.Namespace) -> int:
@@ -166,7 +186,8 @@ def _cmd_stress(a: argparse.Namespace) -> int:
     out = run_stress(scenarios=a.scenario, suite_name=a.suite, observers=a.observer,
                      frictions=parse_friction_list(a.friction) if a.friction else None,
                      faults=parse_fault_specs(a.faults) if a.faults else None,
-                     seeds=a.seeds, base_seed=a.seed, jobs=a.jobs, dask=a.dask, out=Path(a.out), progress=None)
+                     seeds=a.seeds, base_seed=a.seed, jobs=a.jobs, dask=a.dask, out=Path(a.out), progress=None,
+                     fresh=a.fresh)
     print(f"report: {out / 'index.html'}")
     return EXIT_OK
 
@@ -185,6 +206,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="roadtruth", description="Validate vehicle state observers against MuJoCo ground truth "
                 "and recorded logs.")
     p.add_argument("--version", action="version", version=f"roadtruth {__version__}")
+    p.add_argument("--cache-dir", action=_CacheDirAction, help=_CACHE_HELP)
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
 
@@ -205,6 +227,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--log-rate", type=_rate, default=100.0, help="truth.csv rate in Hz (default 100)")
     r.add_argument("--no-render", action="store_true", help="skip MuJoCo frames and videos")
     common_sim(r)
+    r.add_argument("--cache-dir", action=_CacheDirAction, help=_CACHE_HELP)
     r.set_defaults(func=_cmd_run)
 
     s = sub.add_parser("simulate", help="ground truth and measurements only")
@@ -241,6 +264,7 @@ def build_parser() -> argparse.ArgumentParser:
     ck.add_argument("--seed", type=_seed, help="seed for everything random")
     ck.add_argument("--jobs", type=_positive_int, default=1, help="parallel processes")
     ck.add_argument("--out", default="reports/check", help="run folder (default reports/check)")
+    ck.add_argument("--cache-dir", action=_CacheDirAction, help=_CACHE_HELP)
     ck.set_defaults(func=_cmd_check)
 
     st = sub.add_parser("stress", help="robustness sweeps: friction x faults x Monte Carlo seeds")
@@ -254,6 +278,9 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--jobs", type=_positive_int, default=1, help="parallel processes (or Dask workers)")
     st.add_argument("--dask", help="Dask scheduler address, or 'local' for a LocalCluster on 127.0.0.1")
     st.add_argument("--out", default="reports/stress", help="output folder (default reports/stress)")
+    st.add_argument("--fresh", action="store_true",
+                    help="recompute every case instead of loading the ones an earlier sweep finished")
+    st.add_argument("--cache-dir", action=_CacheDirAction, help=_CACHE_HELP)
     st.set_defaults(func=_cmd_stress)
 
     rl = sub.add_parser("replay", help="run observers on a recorded log and score them")
@@ -262,6 +289,7 @@ def build_parser() -> argparse.ArgumentParser:
     rl.add_argument("--columns", help="column map YAML (log names/units -> canonical signals)")
     rl.add_argument("--observer", type=_csv_list, help="comma-separated observers (default: all)")
     rl.add_argument("--out", default="reports/replay", help="output folder (default reports/replay)")
+    rl.add_argument("--cache-dir", action=_CacheDirAction, help=_CACHE_HELP)
     rl.set_defaults(func=_cmd_replay)
     return p
 

@@ -180,7 +180,6 @@ def run_case(case: StressCase) -> CaseResult:
     )
     from harness.scoring import score
 
-    from harness.truth_events import scored_until_of, status_of
     t0 = time.perf_counter()
     friction = None if case.friction == SCENARIO_FRICTION else case.friction
     faults = None if case.faults == NO_FAULTS else case.faults
@@ -211,10 +210,9 @@ def run_case(case: StressCase) -> CaseResult:
         if truth.ok:
             truth = FailedTruth(status=status)
         runs = {o: SkippedRun(status=status) for o in case.observers}
-    metrics = score(truth.frame, estimates, scenario=case.scenario, runs=runs, mass_kg=mass,
-                    scored_until_s=scored_until_of(truth))
+    metrics = score(truth.frame, estimates, scenario=case.scenario, runs=runs, mass_kg=mass)
     head = {"case": case.index, "friction": case.friction, "mu": mu, "faults": case.faults,
-            "seed_index": case.seed_index, "seed": case.seed, "truth_status": status_of(truth),
+            "seed_index": case.seed_index, "seed": case.seed, "truth_status": str(truth.status),
             "peak_abs_ay_mps2": _peak(truth.frame, "ay_mps2"), "peak_abs_beta_rad": _peak(truth.frame, "beta_rad")}
     for i, (k, v) in enumerate(head.items()):
         metrics.insert(i, k, [v] * len(metrics))
@@ -280,6 +278,44 @@ def _run_dask(cases: list[StressCase], address: str, jobs: int, info: dict[str, 
             cluster.close()
 
 
+# ---- the case cache ------------------------------------------------------------------------------
+
+def _case_keys(cases: list[StressCase]) -> dict[int, str]:
+    """Cache key of every case that can be keyed exactly (see :mod:`harness.stress_cache`)."""
+    from harness.stress_cache import CaseKeys
+
+    ck = CaseKeys()
+    keys = {}
+    for c in cases:
+        k = ck.key(c.scenario, None if c.friction == SCENARIO_FRICTION else c.friction,
+                   None if c.faults == NO_FAULTS else c.faults, c.seed, c.observers)
+        if k is not None:
+            keys[c.index] = k
+    return keys
+
+
+def _load_cached(cases: list[StressCase], keys: dict[int, str]) -> dict[int, CaseResult]:
+    """The cases an earlier sweep finished, with their position columns set for this sweep."""
+    from harness.stress_cache import load_case
+
+    found: dict[int, CaseResult] = {}
+    for c in cases:
+        if c.index in keys:
+            rows = load_case(keys[c.index], {"case": c.index, "seed_index": c.seed_index, "friction": c.friction,
+                                             "faults": c.faults, "seed": c.seed})
+            if rows is not None:
+                found[c.index] = CaseResult(index=c.index, rows=rows, seconds=0.0)
+    return found
+
+
+def _store_finished(result: CaseResult, key: str | None) -> None:
+    """Store a finished case unless it errored (a rerun retries errors) or cannot be keyed."""
+    from harness.stress_cache import is_cacheable, store_case
+
+    if key is not None and is_cacheable(result.rows, result.traceback):
+        store_case(key, result.rows)
+
+
 # ---- the sweep -----------------------------------------------------------------------------------
 
 def _resolve(scenarios: list[str] | None, suite_name: str, observers: list[str] | None,
@@ -303,7 +339,7 @@ def _resolve(scenarios: list[str] | None, suite_name: str, observers: list[str] 
 def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", observers: list[str] | None,
                frictions: list[str] | None, faults: list[str] | None, seeds: int = 1,
                base_seed: int | None = None, jobs: int = 1, dask: str | None = None,
-               out: Path = Path("reports/stress"), progress: bool | None = None) -> Path:
+               out: Path = Path("reports/stress"), progress: bool | None = None, fresh: bool = False) -> Path:
     """Run a robustness sweep and write ``stress.csv``, ``summary.csv``, ``run.json``, ``index.html``.
 
     Parameters
@@ -321,6 +357,9 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
     dask : None (local processes), ``"local"`` (a LocalCluster on 127.0.0.1) or a scheduler address.
     out : output folder; replaced atomically when the sweep is complete.
     progress : True = tqdm bar, False = one line per case, None = bar only on a terminal.
+    fresh : compute every case even when the case cache holds it (the cache is refreshed). Otherwise
+        a case finished by an earlier sweep is loaded (:mod:`harness.stress_cache`): a rerun resumes,
+        a wider sweep computes only its new cases, and the files are the same bytes either way.
 
     Returns
     -------
@@ -346,18 +385,23 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
     names, chosen = _resolve(scenarios, suite_name, observers, fr_list, fa_list)
     seed_values = monte_carlo_seeds(base, n_seeds)
     cases = build_cases(names, fr_list, fa_list, seed_values, chosen)
+    keys = _case_keys(cases)
+    results: dict[int, CaseResult] = {} if fresh else _load_cached(cases, keys)
+    todo = [c for c in cases if c.index not in results]
 
     dask_info: dict[str, Any] = {}
-    results: dict[int, CaseResult] = {}
-    bar = Progress(len(cases), progress, desc="roadtruth stress")
+    bar = Progress(len(todo), progress, desc="roadtruth stress")
+    if results:
+        bar.note(f"{len(results)} of {len(cases)} cases loaded from the case cache (--fresh recomputes them)")
     out = Path(out)
     try:
         with atomic_output_dir(out) as tmp:
             os.chmod(tmp, 0o755)
             t_run = time.perf_counter()
-            stream = _run_dask(cases, dask, jobs, dask_info) if dask else _run_local(cases, jobs)
+            stream = (_run_dask(todo, dask, jobs, dask_info) if dask else _run_local(todo, jobs)) if todo else ()
             for r in stream:
                 results[r.index] = r
+                _store_finished(r, keys.get(r.index))  # at once: a killed sweep keeps what it finished
                 c = cases[r.index]
                 bar.item(f"case {c.index}: {c.scenario} friction={c.friction} faults={c.faults} "
                          f"seed#{c.seed_index}: {r.rows['truth_status'].iloc[0] if len(r.rows) else '?'}, "
@@ -367,26 +411,33 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
             write_csv(rows, tmp / "stress.csv")
             summary = summarize(rows)
             write_csv(summary, tmp / "summary.csv")
-            case_s = [results[c.index].seconds for c in cases]
+            case_s = [results[c.index].seconds for c in todo]
             run_json = {
                 "command": "stress", "suite": suite_name if not scenarios else None, "scenarios": names,
                 "observers": chosen, "frictions": fr_list, "faults": fa_list, "seeds": n_seeds,
                 "base_seed": base, "seed_values": seed_values, "n_cases": len(cases), "jobs": jobs,
                 "executor": ("dask " + dask) if dask else ("processes" if jobs > 1 else "in-process"),
-                "dask": dask_info or None, "float_format": FLOAT_FORMAT,
+                "dask": {"workers": dask_info["workers"]} if "workers" in dask_info else None,
+                "float_format": FLOAT_FORMAT,
                 "case_errors": {str(c.index): results[c.index].traceback for c in cases
                                 if results[c.index].traceback},
-                "timings_s": {"cases_wall": round(run_s, 3), "case_sum": round(sum(case_s), 3),
-                              "case_mean": round(sum(case_s) / len(case_s), 3)},
-                "cases_per_s": round(len(cases) / run_s, 4) if run_s > 0 else None,
                 "versions": versions(), "git_revision": git_revision(),
             }
-            run_json["wall_s"] = round(time.perf_counter() - t_wall, 3)
             write_json(run_json, tmp / "run.json")
             write_index(tmp, summary, run_json)
+            # How this sweep was executed (times, cache use) differs between identical sweeps, so it
+            # stays out of run.json and the page, which are byte-identical for the same inputs.
+            write_json({"command": "stress", "n_cases": len(cases), "n_cached": len(cases) - len(todo),
+                        "n_computed": len(todo), "cases_wall_s": round(run_s, 3),
+                        "computed_case_sum_s": round(sum(case_s), 3),
+                        "computed_case_mean_s": round(sum(case_s) / len(case_s), 3) if case_s else None,
+                        "computed_cases_per_s": round(len(todo) / run_s, 4) if todo and run_s > 0 else None,
+                        "dask_startup_s": dask_info.get("startup_s"),
+                        "wall_s": round(time.perf_counter() - t_wall, 3)}, tmp / "timings.json")
     finally:
         bar.close()
-    bar.note(f"wrote {out.resolve()}: {len(cases)} cases in {time.perf_counter() - t_wall:.1f} s")
+    bar.note(f"wrote {out.resolve()}: {len(cases)} cases ({len(cases) - len(todo)} from the case cache) "
+             f"in {time.perf_counter() - t_wall:.1f} s")
     return out.resolve()
 
 

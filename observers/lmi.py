@@ -8,7 +8,10 @@
   solver: every LMI at every vertex and on a dense grid of the physical scheduling domain
   (eigenvalues with a margin), optional Metzler conditions, and frozen closed-loop stability. A design
   that fails is ``certified=False`` with the reason; it is never silently used as good.
-* A disk cache of :class:`DesignResult` (JSON) keyed by a hash of everything the design depends on.
+* A disk cache of :class:`DesignResult` (JSON) keyed by a hash of everything the design depends on,
+  in the user cache folder (``$ROADTRUTH_CACHE`` overrides it); each entry carries a SHA-256 of its
+  content, so an edited entry is ignored and the design recomputed (why a digest and not a re-check:
+  see the cache section).
 
 cvxpy is imported lazily (only a cold design needs it).
 """
@@ -21,8 +24,6 @@ import inspect
 import itertools
 import json
 import math
-import os
-import tempfile
 import time
 import warnings
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -32,8 +33,7 @@ from typing import Any
 
 import numpy as np
 
-CACHE_ENV = "ROADTRUTH_CACHE"
-DEFAULT_CACHE_DIR = Path(".roadtruth-cache") / "designs"
+from harness.disk_cache import CACHE_ENV, cache_folder, read_entry, write_entry  # noqa: F401 (CACHE_ENV re-exported)
 
 
 class DesignStatus(enum.Enum):
@@ -319,14 +319,22 @@ def certify_design(*, P: np.ndarray | None, lmis: Mapping[str, Callable[[np.ndar
 
 
 # ---- cache ---------------------------------------------------------------------------------------
+#
+# Why a digest and not re-certification on load: the certificate's checks are closures that each
+# family builds inside its own design function (its vertex LMIs, grid, decay rate, Metzler
+# structure), and several stored designs cannot be re-checked from what they hold (the "as printed"
+# variants carry no P, the UIO's (1.26) needs the solver's lambda, the switched design's LMIs need its
+# per-mode Q and gamma). So an entry carries a SHA-256 of its content and key (``harness.disk_cache``);
+# any edit makes it unreadable and the design is recomputed and re-certified from scratch.
 
 _MEMO: dict[str, DesignResult] = {}
+#: Sub-folder of the cache root (``harness.disk_cache.cache_root``) holding the designs.
+CACHE_KIND = "designs"
 
 
 def design_cache_dir() -> Path:
-    """``$ROADTRUTH_CACHE`` if set, else ``.roadtruth-cache/designs`` under the working directory."""
-    env = os.environ.get(CACHE_ENV)
-    return Path(env) if env else DEFAULT_CACHE_DIR
+    """``designs/`` under ``$ROADTRUTH_CACHE``, else under the user cache folder (never the working directory)."""
+    return cache_folder(CACHE_KIND)
 
 
 def source_fingerprint(*objects: Any) -> str:
@@ -348,35 +356,30 @@ def design_key(payload: Mapping[str, Any]) -> str:
 
 
 def load_design(key: str, folder: Path | None = None) -> DesignResult | None:
-    """The cached design of ``key`` or None (an unreadable entry counts as absent)."""
-    path = (folder or design_cache_dir()) / f"{key}.json"
+    """The cached design of ``key``, or None when absent, unreadable, edited (digest mismatch) or
+    inconsistent (a ``certified`` flag that disagrees with the status)."""
+    data = read_entry(folder or design_cache_dir(), key)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-        result = DesignResult.from_json_dict(data["design"])
-    except (OSError, ValueError, KeyError, TypeError):
+        result = DesignResult.from_json_dict(data["design"])  # type: ignore[index]
+    except (ValueError, KeyError, TypeError):
         return None
-    return result if result.key == key else None
+    if result.key != key or result.certified != (result.status is DesignStatus.CERTIFIED):
+        return None
+    return result
 
 
 def store_design(result: DesignResult, payload: Mapping[str, Any], folder: Path | None = None) -> None:
-    """Write atomically (temp file + rename); cache failures never break a run."""
-    folder = folder or design_cache_dir()
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        text = json.dumps({"payload": payload, "design": result.to_json_dict()}, sort_keys=True, indent=1,
-                          default=repr)
-        fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp")
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.chmod(tmp, 0o644)  # mkstemp makes it private; the cache is shared
-        os.replace(tmp, folder / f"{result.key}.json")
-    except OSError:
-        return
+    """Write the design and its digest atomically; cache failures never break a run."""
+    write_entry(folder or design_cache_dir(), result.key, {"payload": payload, "design": result.to_json_dict()})
 
 
 def cached_design(payload: Mapping[str, Any], compute: Callable[[], DesignResult], *,
                   use_cache: bool = True) -> DesignResult:
-    """Return the design for ``payload`` from memory, then disk, else ``compute()`` and store it."""
+    """Return the design for ``payload`` from memory, then disk, else ``compute()`` and store it.
+
+    A disk entry is used only if its digest matches (see the note above this section); a tampered or
+    corrupt entry is recomputed and overwritten.
+    """
     key = design_key(payload)
     if use_cache:
         if key in _MEMO:

@@ -34,7 +34,8 @@ TIMING_COLUMNS = ["us_per_step"]
 
 def _sweep(out: Path, **kw: object) -> Path:
     args: dict[str, object] = {"scenarios": [SCENARIO], "observers": OBSERVERS, "frictions": FRICTIONS,
-                               "faults": None, "seeds": 2, "base_seed": BASE_SEED, "progress": False}
+                               "faults": None, "seeds": 2, "base_seed": BASE_SEED, "progress": False,
+                               "fresh": True}  # compute every case: these tests compare executors
     args.update(kw)
     return run_stress(out=out, **args)  # type: ignore[arg-type]
 

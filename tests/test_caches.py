@@ -1,0 +1,125 @@
+"""The LMI design cache cannot lie and does not litter: an edited entry is ignored and recomputed,
+the cache lives in the user cache folder (or ``$ROADTRUTH_CACHE`` / ``--cache-dir``), never in the
+working directory."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from harness.disk_cache import CACHE_ENV, read_entry, write_entry
+from harness.vehicle import load_vehicle
+from observers import lmi
+from observers.lmi import DesignStatus
+from observers.registry import create
+
+#: An "as printed" variant whose certification fails (the printed gain is not Metzler): a cheap design
+#: that is REJECTED, the case where a lying cache would do harm.
+REJECTED = "interval_wang_printed"
+
+
+@pytest.fixture
+def cache_root(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    root = tmp_path / "cache"
+    monkeypatch.setenv(CACHE_ENV, str(root))
+    lmi.clear_memory_cache()
+    yield root
+    lmi.clear_memory_cache()
+
+
+def _entry(root: Path) -> Path:
+    files = list((root / "designs").glob("*.json"))
+    assert len(files) == 1, files
+    return files[0]
+
+
+def _tamper(path: Path, **design_fields: object) -> None:
+    data = json.loads(path.read_text())
+    data["design"].update(design_fields)
+    path.write_text(json.dumps(data, sort_keys=True, indent=1))
+
+
+@pytest.mark.parametrize("forged", [
+    {"certified": True},                                                 # the flag alone
+    {"certified": True, "status": "certified", "reason": "all checks passed at every vertex and grid point"},
+])
+def test_a_tampered_rejected_design_is_not_certified_and_is_recomputed(cache_root: Path, forged: dict) -> None:
+    v = load_vehicle("sedan")
+    first = create(REJECTED, v).design()
+    assert first.status is DesignStatus.REJECTED and not first.certified and not first.from_cache
+    path = _entry(cache_root)
+    _tamper(path, **forged)
+    lmi.clear_memory_cache()
+    again = create(REJECTED, v).design()
+    assert again.status is DesignStatus.REJECTED and again.certified is False
+    assert not again.from_cache  # the edited entry was ignored: the design was solved and checked again
+    stored = json.loads(path.read_text())["design"]
+    assert stored["certified"] is False and stored["status"] == "rejected"  # and the entry rewritten
+    lmi.clear_memory_cache()
+    third = create(REJECTED, v).design()
+    assert third.from_cache and third == again  # the rewritten entry is valid again
+
+
+def test_an_untouched_entry_is_used_and_a_swapped_digest_is_not(cache_root: Path) -> None:
+    v = load_vehicle("sedan")
+    certified = create("lpv_wang_printed", v).design()
+    lmi.clear_memory_cache()
+    assert create("lpv_wang_printed", v).design().from_cache
+    # a valid entry and digest of another design copied under this key is refused too
+    rejected = create(REJECTED, v).design()
+    folder = cache_root / "designs"
+    for suffix in (".json", ".sha256"):
+        (folder / f"{certified.key}{suffix}").write_bytes((folder / f"{rejected.key}{suffix}").read_bytes())
+    lmi.clear_memory_cache()
+    again = create("lpv_wang_printed", v).design()
+    assert not again.from_cache and again.certified and again.key == certified.key
+
+
+def test_entry_round_trip_and_truncation(tmp_path: Path) -> None:
+    assert write_entry(tmp_path, "abc123", {"x": [1.5, float("nan")], "y": "z"})
+    got = read_entry(tmp_path, "abc123")
+    assert got["y"] == "z" and got["x"][0] == 1.5 and got["x"][1] != got["x"][1]
+    p = tmp_path / "abc123.json"
+    p.write_bytes(p.read_bytes()[:-3])
+    assert read_entry(tmp_path, "abc123") is None
+    assert read_entry(tmp_path, "0000") is None  # absent
+    assert not list(tmp_path.glob("*.tmp")) and not list(tmp_path.glob(".*"))  # no temp files left
+
+
+def test_no_cache_in_the_working_directory_and_the_user_cache_is_used(tmp_path: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    work, user_cache = tmp_path / "work", tmp_path / "xdg"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    monkeypatch.delenv(CACHE_ENV, raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(user_cache))  # where platformdirs puts user caches on Linux
+    lmi.clear_memory_cache()
+    try:
+        design = create(REJECTED, load_vehicle("sedan")).design()
+    finally:
+        lmi.clear_memory_cache()
+    assert list(work.iterdir()) == []  # nothing (no .roadtruth-cache) in the working directory
+    assert (user_cache / "roadtruth" / "designs" / f"{design.key}.json").is_file()
+    assert (user_cache / "roadtruth" / "designs" / f"{design.key}.sha256").is_file()
+
+
+def test_roadtruth_cache_environment_variable_is_respected(cache_root: Path) -> None:
+    design = create(REJECTED, load_vehicle("sedan")).design()
+    assert lmi.design_cache_dir() == cache_root / "designs"
+    assert (cache_root / "designs" / f"{design.key}.json").is_file()
+
+
+def test_cache_dir_option_sets_the_cache_for_the_command(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from harness.cli import build_parser
+
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path / "elsewhere"))  # restored after the test
+    build_parser().parse_args(["stress", "--cache-dir", str(tmp_path / "mine"), "--seeds", "1"])
+    assert lmi.design_cache_dir() == (tmp_path / "mine").resolve() / "designs"
+    build_parser().parse_args(["--cache-dir", str(tmp_path / "global"), "observers"])
+    assert lmi.design_cache_dir() == (tmp_path / "global").resolve() / "designs"
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(SystemExit) as info:
+        build_parser().parse_args(["run", "--cache-dir", str(tmp_path / "afile")])
+    assert info.value.code == 2
