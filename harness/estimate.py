@@ -1,13 +1,15 @@
 """Run observers over a measurement frame and isolate their failures.
 
-One observer that raises, diverges or lacks an input never stops the others: it gets a status
-(``ok``, ``diverged``, ``error: <msg>``, ``skipped: <reason>``) and the run carries on.
+One observer that raises, exits, crashes, hangs, diverges or lacks an input never stops the others:
+it gets a status (``ok``, ``diverged``, ``error: <msg>``, ``skipped: <reason>``) and the run carries
+on. Each observer is designed and run in a host process (:mod:`harness.observer_host`) with a time
+budget (:func:`default_observer_timeout`). Bad requests (an unknown observer, options for an observer
+not being run, an option it does not accept) raise ``InputError`` before any observer runs.
 """
 
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -27,6 +29,24 @@ ABSURD_LIMITS: dict[str, float] = {
 }
 ABSURD_DURATION_S = 1.0
 
+#: Default time budget of one observer (design + run) [s]: this many seconds per simulated second ...
+OBSERVER_TIMEOUT_PER_SIM_S = 20.0
+#: ... and never less than this [s] (a cold LMI design with cvxpy takes seconds, not minutes).
+OBSERVER_TIMEOUT_MIN_S = 60.0
+
+
+def default_observer_timeout(duration_s: float) -> float:
+    """Time budget of one observer over ``duration_s`` simulated seconds: max(60 s, 20 × duration) [s]."""
+    d = float(duration_s) if math.isfinite(duration_s) and duration_s > 0 else 0.0
+    return max(OBSERVER_TIMEOUT_MIN_S, OBSERVER_TIMEOUT_PER_SIM_S * d)
+
+
+def check_observer_timeout(timeout_s: float | None) -> None:
+    """``--observer-timeout``: None (the default budget) or a finite number of seconds > 0."""
+    if timeout_s is not None and not (isinstance(timeout_s, (int, float)) and math.isfinite(timeout_s)
+                                      and timeout_s > 0):
+        raise InputError(f"must be a number of seconds > 0 (got {timeout_s!r})", field="--observer-timeout")
+
 
 @dataclass(frozen=True)
 class ObserverRun:
@@ -39,11 +59,6 @@ class ObserverRun:
     n_steps: int
     design_status: str = ""  # DesignStatus value of the observer's design
     detail: str = ""         # why it diverged, where it did
-
-
-def _one_line(exc: BaseException) -> str:
-    text = f"{type(exc).__name__}: {exc}".strip().splitlines()
-    return text[0][:300] if text else type(exc).__name__
 
 
 def _diverged(track_x: np.ndarray, t: np.ndarray, states: tuple[str, ...]) -> str | None:
@@ -68,7 +83,8 @@ def _diverged(track_x: np.ndarray, t: np.ndarray, states: tuple[str, ...]) -> st
 
 
 def run_observers(measurements: pd.DataFrame, vehicle: VehicleParams, names: list[str], *,
-                  options: Mapping[str, Mapping[str, Any]] | None = None
+                  options: Mapping[str, Mapping[str, Any]] | None = None,
+                  timeout_s: float | None = None,
                   ) -> tuple[pd.DataFrame, dict[str, ObserverRun]]:
     """Run each observer of ``names`` over ``measurements``.
 
@@ -81,7 +97,10 @@ def run_observers(measurements: pd.DataFrame, vehicle: VehicleParams, names: lis
     names : list of str
         Registered observer names; an unknown name raises ``InputError`` before anything runs.
     options : mapping name -> options, optional
-        Per-observer options passed to ``create``.
+        Per-observer options passed to the observer's constructor (checked before anything runs).
+    timeout_s : float, optional
+        Wall-time budget of each observer's design + run [s]; default
+        :func:`default_observer_timeout` of the frame's duration. Over budget: ``error: timed out after N s``.
 
     Returns
     -------
@@ -90,7 +109,8 @@ def run_observers(measurements: pd.DataFrame, vehicle: VehicleParams, names: lis
         without covariance). A diverged observer's estimates are kept (for plots); failed ones are absent.
     runs : dict name -> ObserverRun
     """
-    from observers.registry import create, observer_class
+    from harness.observer_host import run_isolated
+    from observers.registry import observer_class
 
     options = dict(options or {})
     unknown = sorted(set(options) - set(names))
@@ -98,9 +118,15 @@ def run_observers(measurements: pd.DataFrame, vehicle: VehicleParams, names: lis
         raise InputError(f"options given for observer {unknown[0]!r}, which is not being run", field="options")
     if "t_s" not in measurements.columns:
         raise InputError("measurement frame has no t_s column", field="t_s")
+    check_observer_timeout(timeout_s)
     for n in names:
-        observer_class(n)  # unknown names fail here, before any work
+        cls = observer_class(n)  # unknown names fail here, before any work
+        if options.get(n):
+            # The caller's options are checked here (unknown keys, bad values raise InputError, which
+            # is the caller's mistake); running the observer happens in the host.
+            cls(vehicle, **dict(options[n]))
     t = measurements["t_s"].to_numpy(dtype=float)
+    budget = default_observer_timeout(float(t[-1] - t[0]) if len(t) else 0.0) if timeout_s is None else float(timeout_s)
     frames: list[pd.DataFrame] = []
     runs: dict[str, ObserverRun] = {}
     for name in names:
@@ -110,24 +136,18 @@ def run_observers(measurements: pd.DataFrame, vehicle: VehicleParams, names: lis
         if missing:
             runs[name] = ObserverRun(f"skipped: missing {missing[0]}", math.nan, False, "", 0)
             continue
-        certified, reason, dstatus = False, "", ""
-        try:
-            obs = create(name, vehicle, **dict(options.get(name, {})))
-            d = obs.design()
-            certified, reason, dstatus = bool(d.certified), d.reason, d.status.value
-            Y = measurements[list(cls.inputs)].to_numpy(dtype=float)
-            t0 = time.perf_counter()
-            track = obs.run(t, Y)
-            elapsed = time.perf_counter() - t0
-        except InputError:
-            raise
-        except Exception as exc:  # noqa: BLE001 - one failing observer must not stop the others
-            runs[name] = ObserverRun(f"error: {_one_line(exc)}", math.nan, certified, reason, 0, dstatus)
+        Y = measurements[list(cls.inputs)].to_numpy(dtype=float)
+        reply = run_isolated(cls, vehicle, options.get(name, {}), t, Y, budget)
+        if reply.error:
+            runs[name] = ObserverRun(f"error: {reply.error}", math.nan, reply.certified, reply.design_reason, 0,
+                                     reply.design_status)
             continue
+        track = reply.track
         n = len(t)
         why = _diverged(track.x, t, track.states)
         status = "diverged" if why else "ok"
-        runs[name] = ObserverRun(status, elapsed / max(n, 1) * 1e6, certified, reason, n, dstatus, why or "")
+        runs[name] = ObserverRun(status, reply.seconds / max(n, 1) * 1e6, reply.certified, reply.design_reason, n,
+                                 reply.design_status, why or "")
         frames.append(track.to_frame())
     if frames:
         est = pd.concat(frames, ignore_index=True)
