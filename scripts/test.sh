@@ -2,6 +2,8 @@
 # Set up a fresh virtual environment from pyproject.toml and run the linter and the test suite.
 # Used verbatim by CI (.ci/run). On Debian as root it also installs the system packages the tests
 # use for real: Mesa (offscreen MuJoCo rendering) and Chromium (the report is opened in a browser).
+# Tests that read the recorded example log (../shared/data beside the repository) skip when it is
+# absent; ROADTRUTH_REQUIRE_DATA=1 (set by .ci/run) makes them fail instead.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null; then

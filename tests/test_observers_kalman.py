@@ -24,7 +24,6 @@ from observers.registry import create
 from observers.tire_curves import axle_curves, magic_formula, peak_lateral_acceleration
 
 SEDAN = load_vehicle("sedan")
-REVS_LOG = Path(__file__).resolve().parents[2] / "shared" / "data" / "revs-250lm" / "revs_250lm_2014-02-22.csv.gz"
 
 
 def test_kf_covariance_converges_to_the_riccati_solution() -> None:
@@ -272,12 +271,11 @@ def test_persistent_ay_mismatch_stays_in_the_plausible_set_and_recovers(name: st
         assert np.max(np.abs(loose.x[late, 0] - X[late, 0])) > 10.0
 
 
-@pytest.mark.skipif(not REVS_LOG.is_file(), reason="Revs 250 LM log not available")
-def test_nonlinear_filters_track_the_revs_log() -> None:
+def test_nonlinear_filters_track_the_revs_log(revs_log: Path) -> None:
     """The real Ferrari 250 LM log (1.2 g corners): the guarded filters stay in their set and beat the KF."""
     from harness.replay import prepare_log
 
-    rl = prepare_log(REVS_LOG, "revs_250lm")
+    rl = prepare_log(revs_log, "revs_250lm")
     seg = rl.run_segments[0]
     m = rl.measurements[seg.index]
     m = m[(m["t_s"] >= 300.0) & (m["t_s"] < 400.0)]  # 100 s incl. the left-right transition at 340 s

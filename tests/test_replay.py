@@ -14,17 +14,15 @@ from harness.cli import main
 from harness.errors import LogError
 from harness.replay import prepare_log, replay
 
-REVS_LOG = (Path(__file__).resolve().parents[1].parent / "shared" / "data" / "revs-250lm"
-            / "revs_250lm_2014-02-22.csv.gz")
 REVS_NAME = "revs_250lm_2014-02-22"
 DEG = math.pi / 180.0
 
 
 @pytest.fixture(scope="module")
-def revs_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def revs_run(tmp_path_factory: pytest.TempPathFactory, revs_log: Path) -> Path:
     """The whole Revs log (55,001 rows) replayed with the linear KF and two other observers."""
     out = tmp_path_factory.mktemp("replay") / "revs"
-    return replay(REVS_LOG, vehicle="ferrari_250lm", columns="revs_250lm",
+    return replay(revs_log, vehicle="ferrari_250lm", columns="revs_250lm",
                   observers=["kf_bicycle", "open_loop_bicycle", "lpv_wang"], out=out)
 
 
@@ -168,6 +166,6 @@ def test_bad_log_exits_2_with_one_line(tmp_path: Path, capsys: pytest.CaptureFix
     assert not out.exists() and not list(tmp_path.glob(".out.*"))
 
 
-def test_prepare_log_rejects_unknown_map_name() -> None:
+def test_prepare_log_rejects_unknown_map_name(revs_log: Path) -> None:
     with pytest.raises(LogError, match="unknown column map 'revs'"):
-        prepare_log(REVS_LOG, "revs")
+        prepare_log(revs_log, "revs")

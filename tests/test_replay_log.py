@@ -22,9 +22,6 @@ from harness.replay_log import (
 )
 from harness.replay_segments import RUN, SKIPPED, segment_log, segment_measurements
 
-REVS_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "revs-250lm"
-REVS_LOG = REVS_DIR / "revs_250lm_2014-02-22.csv.gz"
-
 
 def steady_turn_log(t: np.ndarray, vx: float | np.ndarray = 20.0) -> pd.DataFrame:
     """A canonical log of a car on a slow steering sine: linear-bicycle steady state at each instant."""
@@ -64,9 +61,9 @@ def vendor_log(t: np.ndarray) -> pd.DataFrame:
 
 # ---- the real log ------------------------------------------------------------------------------
 
-def test_revs_log_maps_to_one_regular_segment() -> None:
+def test_revs_log_maps_to_one_regular_segment(revs_log: Path) -> None:
     cmap = load_column_map("revs_250lm")
-    frame = apply_map(read_log(REVS_LOG), cmap, str(REVS_LOG))
+    frame = apply_map(read_log(revs_log), cmap, str(revs_log))
     assert len(frame) == 55001
     assert frame.t_s.iloc[0] == pytest.approx(149.99) and frame.t_s.iloc[-1] == pytest.approx(699.99)
     # the INS reference obeys the kinematic identity beta = atan(vy / vx)
@@ -76,9 +73,9 @@ def test_revs_log_maps_to_one_regular_segment() -> None:
     assert [(s.status, s.n_samples, s.resampled) for s in segs] == [(RUN, 55001, False)]
 
 
-def test_identity_map_of_a_canonical_log_matches_the_shipped_revs_map() -> None:
-    raw = read_log(REVS_LOG)
-    ident = identity_map(list(raw.columns), str(REVS_LOG))
+def test_identity_map_of_a_canonical_log_matches_the_shipped_revs_map(revs_log: Path) -> None:
+    raw = read_log(revs_log)
+    ident = identity_map(list(raw.columns), str(revs_log))
     assert set(load_column_map("revs_250lm").measured) <= set(ident.measured)
     assert {"beta_rad", "vy_mps", "vx_mps"} <= set(ident.reference)
     assert "yaw_rate_filt_degps" not in ident.channels  # not canonical: ignored, never misread as rad/s
