@@ -7,6 +7,7 @@ import re
 from html.parser import HTMLParser
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 from synthetic_run import make_run_folder
@@ -133,3 +134,123 @@ def test_run_data_orders_states_canonically(run_dir: Path):
     run = RunData.load(run_dir)
     assert run.states == ["beta_rad", "yaw_rate_radps"]
     assert run.scenario_names == ["step_steer", "ice_patch"]
+
+
+# ---- honest verdicts: skipped is not failed, ranks, axes, styles, decimation ------------------------
+
+def _cards(text: str) -> dict[str, str]:
+    return dict(re.findall(r'data-(failed|not-applicable)="(\d+)"', text))
+
+
+def test_skips_are_not_failures_and_not_rejections(tmp_path: Path):
+    from report_folders import RADAR, skips_only_run_folder
+
+    text = build_report(skips_only_run_folder(tmp_path / "run")).read_text(encoding="utf-8")
+    # 2 scenarios x (lpv_interval, ekf) ok, the radar observer skipped in both.
+    assert _cards(text) == {"failed": "0", "not-applicable": "2"}
+    assert "0 failed" in text and "not ok" not in text
+    assert "n/a — needs radar" in text
+    # Skipped everywhere: its design was never evaluated here; that is not a rejection.
+    doc = parse(tmp_path / "run" / "index.html")
+    row = text[text.index(f"{RADAR}</th>"):]
+    row = row[:row.index("</tr>")]
+    assert "rejected" not in row and "not designed here" in row
+    assert not any(t == "td" and "failed" in (a.get("class") or "").split() for t, a in doc.tags)
+
+
+def test_a_failed_run_is_counted_and_shown_as_failed(run_dir: Path):
+    text = build_report(run_dir).read_text(encoding="utf-8")
+    assert _cards(text)["failed"] == "2"  # ts_uio on both scenarios: error: LMI infeasible
+    assert '<td class="cell failed" data-status="failed" title="error: LMI infeasible">✘ error</td>' in text
+
+
+def test_ranks_ties_share_the_best_rank_and_empty_cells_get_none():
+    from harness.report.ranking import leaders, rank_state
+
+    rows = [("s1", "a", "ok", 1.0), ("s1", "b", "ok", 1.0), ("s1", "c", "ok", 2.0), ("s1", "d", "skipped: missing range_m", None),
+            ("s2", "a", "ok", 3.0), ("s2", "b", "diverged", 0.1), ("s2", "c", "ok", 1.0), ("s2", "d", "ok", None),
+            ("s3", "d", "ok", 5.0)]
+    m = pd.DataFrame(rows, columns=["scenario", "observer", "status", "rmse"]).assign(state="beta_rad")
+    for frame in (m, m.iloc[::-1]):  # row order (and names' alphabetical order) must not matter
+        r = rank_state(frame, "beta_rad", "rmse", "low", ["s1", "s2", "s3"])
+        assert r["a"].ranks == {"s1": 1, "s2": 2} and r["b"].ranks == {"s1": 1}
+        assert r["c"].ranks == {"s1": 3, "s2": 1} and r["d"].ranks == {"s3": 1}
+        assert (r["a"].mean, r["a"].n_ranked, r["a"].n_scenarios) == (1.5, 2, 3)
+        assert r["c"].mean == 2.0 and r["a"].coverage_text == "1.5 over 2 of 3 scenarios"
+        # The best is chosen among those ranked in the most scenarios: a (1.5) beats b (1.0 over 1).
+        assert [x.observer for x in leaders(r)] == ["a"]
+    # Values equal to the 3 digits shown are ties; "high" is better for coverage.
+    m2 = pd.DataFrame([("s1", "x", "ok", 0.9001), ("s1", "y", "ok", 0.9004), ("s1", "z", "ok", 0.5)],
+                      columns=["scenario", "observer", "status", "coverage"]).assign(state="beta_rad")
+    r2 = rank_state(m2, "beta_rad", "coverage", "high", ["s1"])
+    assert {k: v.ranks["s1"] for k, v in r2.items()} == {"x": 1, "y": 1, "z": 3}
+    nobody = rank_state(m2, "beta_rad", "rmse", "low", ["s1"])
+    assert all(v.mean is None and v.n_ranked == 0 for v in nobody.values())
+
+
+def test_summary_card_and_leaderboard_show_the_same_rank(run_dir: Path):
+    text = build_report(run_dir).read_text(encoding="utf-8")
+    card = re.search(r"sideslip β</div>\s*<div>.*?<b>(\w+)</b>.*?mean rank ([\d.]+) over (\d+) of (\d+)", text, re.S)
+    assert card, "no sideslip card"
+    board = text[text.index('data-state="beta_rad"'):]
+    row = re.search(r"<tr data-mean-ranks='([^']+)'>\s*<th class=\"obs\">.*?" + card.group(1) + "</th>", board, re.S)
+    ranks = json.loads(row.group(1).replace("&#34;", '"'))["rmse"]
+    assert f"{ranks['mean']:.1f}" == card.group(2) and (ranks["n"], ranks["of"]) == (int(card.group(3)), int(card.group(4)))
+
+
+def test_beta_axis_stays_near_the_truth_when_an_interval_observer_starts_wide(tmp_path: Path):
+    from report_folders import wide_start_run_folder
+
+    text = build_report(wide_start_run_folder(tmp_path / "run")).read_text(encoding="utf-8")
+    spec = json.loads(re.search(r'id="fig-step_steer-beta_rad">(.*?)</script>', text, re.S).group(1))
+    truth = next(t for t in spec["data"] if t["name"] == "truth")
+    t_lo, t_hi = min(truth["y"]), max(truth["y"])
+    lo, hi = spec["layout"]["yaxis"]["range"]
+    assert lo <= t_lo and hi >= t_hi
+    assert hi - lo <= 4.5 * (t_hi - t_lo)  # the ±100° start-up bounds do not set the axis
+    est = next(t for t in spec["data"] if t["name"] == "lpv_interval")
+    assert max(est["y"]) > 50  # ... although they are drawn, and
+    buttons = spec["layout"]["updatemenus"][0]["buttons"]
+    assert buttons[1]["args"][0] == {"yaxis.autorange": True, "yaxis2.autorange": True}  # "show all" shows them
+    assert spec["meta"]["clipped"] is True
+
+
+def test_every_observer_has_its_own_style_the_same_on_every_page():
+    from harness.report.figures import observer_style, observer_styles
+    from harness.report.styles import registry_names
+
+    names = [*registry_names(), "plugin_obs", "my_kf", "team_ukf", "a", "b", "c"]
+    assert len(names) >= 20
+    styles = observer_styles(names)
+    pairs = [(s.colour.lower(), s.dash) for s in styles.values()]
+    assert len(set(pairs)) == len(pairs)
+    # Same style whatever else is on the page, and the same as the single-name function.
+    few = observer_styles(list(reversed(names[:5])))
+    for n in names[:5]:
+        assert few[n] == styles[n] == observer_style(n)
+    assert observer_style("ekf_bicycle") != observer_style("open_loop_bicycle")
+
+
+def test_decimation_keeps_the_min_and_max_of_each_bucket_and_the_gaps():
+    from harness.report.figures import decimate
+
+    rng = np.random.default_rng(0)
+    n, n_out = 55_000, 400
+    x = np.arange(n) * 0.01
+    y = np.cumsum(rng.standard_normal(n)) * 0.01
+    n_buckets = n_out // 4
+    edges = np.linspace(x[0], x[-1], n_buckets + 1)
+    spikes = []
+    for k in range(n_buckets):  # a one-sample peak and dip well inside every bucket
+        i_max = np.searchsorted(x, edges[k] + 0.3 * (edges[k + 1] - edges[k]))
+        i_min = np.searchsorted(x, edges[k] + 0.6 * (edges[k + 1] - edges[k]))
+        y[i_max] += 50 + rng.random()
+        y[i_min] -= 50 + rng.random()
+        spikes += [i_max, i_min]
+    y[30_150:30_200] = np.nan  # a dropout, clear of the spikes
+    idx = decimate(x, y, n_out)
+    assert idx.size <= n_out + 10
+    assert set(spikes) <= set(idx.tolist())
+    assert 30_150 in idx  # the gap stays a gap (a NaN point breaks the line)
+    every_nth = np.arange(0, n, n // n_out)
+    assert not set(spikes) <= set(every_nth.tolist())  # what the old decimation lost

@@ -12,9 +12,10 @@ from importlib.resources import files
 from pathlib import Path
 
 import jinja2
+from markupsafe import Markup
 
 from harness import __version__
-from harness.report.figures import PALETTE
+from harness.report.figures import LineStyle, observer_style, observer_styles, swatch_svg
 from harness.report.rundata import RunData
 from harness.report.sections.base import Section
 from harness.report.sections.leaderboard import LeaderboardSection
@@ -22,23 +23,38 @@ from harness.report.sections.observers import ObserversSection
 from harness.report.sections.provenance import ProvenanceSection
 from harness.report.sections.scenarios import ScenariosSection
 from harness.report.sections.summary import SummarySection
+from harness.report.verdicts import DESIGN_ORDER, NOT_APPLICABLE, design_class, design_label, status_kind
 
 
 @dataclass(frozen=True)
 class Page:
     """Page-wide values shared by the sections."""
 
-    colours: dict[str, str] = field(default_factory=dict)
+    #: observer -> line style (colour × dash), the same on every page (``observer_styles``).
+    styles: dict[str, LineStyle] = field(default_factory=dict)
     #: observer -> design status ("certified", "rejected", "infeasible", "solver_failed",
-    #: "not_applicable"), from run.json's observer runs or, failing that, the ``certified`` column.
+    #: "not_applicable", "not_evaluated"), from run.json's observer runs or, failing that, the
+    #: ``certified`` column of the rows of runs that got as far as a design.
     designs: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def colours(self) -> dict[str, str]:
+        return {k: v.colour for k, v in self.styles.items()}
+
+    def swatch(self, observer: str) -> Markup:
+        """Inline SVG sample of the observer's line (colour and dash), for tables."""
+        return Markup(swatch_svg(self.styles.get(observer) or observer_style(observer)))
 
 
 def design_statuses(run: RunData) -> dict[str, str]:
-    """One design status per observer: the worst seen over the scenarios."""
+    """One design status per observer: the worst seen over the scenarios where it was designed.
+
+    A skipped run never designed anything: it says nothing about certification (an observer skipped
+    everywhere is "not_evaluated", not "rejected").
+    """
     from harness.report.sections.leaderboard import certification_of
 
-    order = ["solver_failed", "infeasible", "rejected", "certified", "not_applicable"]
+    order = list(DESIGN_ORDER)
     seen: dict[str, list[str]] = {}
     for per_obs in run.run.get("observer_runs", {}).values():
         if not isinstance(per_obs, dict):
@@ -47,11 +63,16 @@ def design_statuses(run: RunData) -> dict[str, str]:
             if isinstance(r, dict) and r.get("design_status") in order:
                 seen.setdefault(obs, []).append(r["design_status"])
     out = {}
+    m = run.metrics
     for obs in run.observer_names:
         if obs in seen:
             out[obs] = min(seen[obs], key=order.index)
+            continue
+        rows = m[(m["observer"] == obs) & (m["status"].map(status_kind) != NOT_APPLICABLE)]
+        c = certification_of(rows)
+        if rows.empty:
+            out[obs] = "not_evaluated"
         else:
-            c = certification_of(run.metrics[run.metrics["observer"] == obs])
             out[obs] = {"certified": "certified", "not certified": "rejected"}.get(c, "not_applicable")
     return out
 
@@ -70,6 +91,8 @@ def _environment() -> jinja2.Environment:
         lstrip_blocks=True,
     )
     env.filters["num"] = _format_number
+    env.filters["design_label"] = design_label
+    env.filters["design_class"] = design_class
     return env
 
 
@@ -110,8 +133,7 @@ class ReportBuilder:
 
     def build(self) -> str:
         env = _environment()
-        page = Page(colours={o: PALETTE[i % len(PALETTE)] for i, o in enumerate(self.run.observer_names)},
-                    designs=design_statuses(self.run))
+        page = Page(styles=observer_styles(self.run.observer_names), designs=design_statuses(self.run))
         parts = []
         for s in self.sections:
             ctx = s.context(self.run, page)

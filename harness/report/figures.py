@@ -1,8 +1,9 @@
 """Plotly figure specifications as plain dicts (drawn by the plotly.js inlined once in the page).
 
 Building the dicts by hand keeps report generation fast (no plotly Python object validation) and
-lets the page draw each figure only when it scrolls into view. Traces are decimated to at most
-``MAX_POINTS`` points and rounded to 5 significant digits to keep the page light.
+lets the page draw each figure only when it scrolls into view. Traces are decimated to about
+``MAX_POINTS`` points with min/max-preserving M4 buckets and rounded to 5 significant digits to keep
+the page light. Angles are shown in degrees; the CSV files stay in SI units.
 """
 
 from __future__ import annotations
@@ -13,18 +14,35 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from harness.report.styles import (  # noqa: F401 - re-exported: other pages import styles from here
+    PALETTE,
+    TRUTH_COLOUR,
+    LineStyle,
+    observer_style,
+    observer_styles,
+    swatch_svg,
+)
+
+#: Points per drawn line at most. Decimation is M4 (min, max, first, last of each of
+#: ``MAX_POINTS / 4`` equal time buckets; Jugel et al., 2014, VLDB), so every peak survives.
 MAX_POINTS = 500
 
-#: One colour per observer, in order of first appearance (colour-blind-safe Okabe-Ito, then Tableau).
-PALETTE: tuple[str, ...] = (
-    "#0072B2", "#E69F00", "#009E73", "#CC79A7", "#D55E00", "#56B4E9", "#8c564b", "#7f7f7f",
-    "#bcbd22", "#17becf", "#9467bd", "#F0E442",
-)
-TRUTH_COLOUR = "#111111"
+#: Smallest span an axis is focused on, per display unit (so a near-constant truth does not zoom
+#: the axis onto sensor noise).
+_MIN_SPAN = {"deg": 1.0, "deg/s": 2.0, "m/s": 0.2, "m/s²": 0.5, "kN": 0.5, "m": 0.5, "1/m": 1e-3}
+#: The focused axis extends at most this many truth spans beyond the truth's own range.
+FOCUS_SPANS = 1.5
+#: Robust quantiles of each estimate that the focused axis tries to contain.
+FOCUS_QUANTILES = (0.01, 0.99)
+
+#: Truth events that mean the car did something no observer is to blame for (drawn in red).
+TRUTH_EVENTS = ("spun out", "left the road", "wheel lift", "rolled over", "stopped")
 
 
 def display_unit(state: str) -> tuple[float, str]:
     """Scale factor and unit used to show a canonical state (angles in deg, forces in kN)."""
+    if state.endswith("_radps2"):
+        return 180.0 / math.pi, "deg/s²"
     if state.endswith("_radps"):
         return 180.0 / math.pi, "deg/s"
     if state.endswith("_rad"):
@@ -48,87 +66,208 @@ def state_label(state: str) -> str:
 
 
 def _round(values: np.ndarray) -> list[float | None]:
-    out: list[float | None] = []
-    for v in values.tolist():
-        out.append(float(f"{v:.5g}") if math.isfinite(v) else None)
-    return out
+    """Values rounded to 5 significant digits (vectorised), non-finite ones as None (JSON null).
+
+    Dividing or multiplying the rounded integer by an exact power of ten gives the double nearest
+    the 5-digit decimal, so JSON shows e.g. ``0.12345``, not ``0.12345000000000001``.
+    """
+    v = np.asarray(values, dtype=float)
+    finite = np.isfinite(v) & (v != 0)
+    mag = np.zeros(v.shape, dtype=np.int64)
+    mag[finite] = np.floor(np.log10(np.abs(v[finite]))).astype(np.int64)
+    k = 4 - mag
+    out = np.where(finite, v, 0.0)
+    small, big = finite & (k >= 0), finite & (k < 0)
+    out[small] = np.round(v[small] * 10.0 ** k[small]) / 10.0 ** k[small]
+    out[big] = np.round(v[big] / 10.0 ** (-k[big])) * 10.0 ** (-k[big])
+    out = np.where(np.isfinite(out), out, v)  # extreme exponents (subnormals): keep the value as is
+    lst: list[float | None] = out.tolist()
+    for i in np.flatnonzero(~np.isfinite(v)).tolist():
+        lst[i] = None
+    return lst
 
 
-def _decimate(n: int) -> np.ndarray:
-    step = max(1, math.ceil(n / MAX_POINTS))
-    return np.arange(0, n, step)
+def decimate(x: np.ndarray, y: np.ndarray, n_out: int = MAX_POINTS) -> np.ndarray:
+    """Indices of at most ~``n_out`` samples of ``y(x)`` that keep the shape a plot shows: in each
+    of ``n_out / 4`` equal-width buckets of ``x`` the first, last, minimum and maximum finite sample
+    (M4 via ``tsdownsample``), plus the first sample of every NaN run so that gaps (dropouts,
+    skipped segments) stay gaps. ``x`` must be non-decreasing; all indices if ``y`` is short."""
+    x = np.ascontiguousarray(x, dtype=float)
+    y = np.ascontiguousarray(y, dtype=float)
+    n = y.size
+    if n <= n_out:
+        return np.arange(n)
+    finite = np.isfinite(y) & np.isfinite(x)
+    fi = np.flatnonzero(finite)
+    keep = [np.flatnonzero(~finite & np.r_[True, finite[:-1]])]  # first NaN of each run
+    if fi.size > n_out:
+        from tsdownsample import M4Downsampler
+
+        n_m4 = max(4, (n_out // 4) * 4)
+        keep.append(fi[M4Downsampler().downsample(x[fi], y[fi], n_out=n_m4)])
+    else:
+        keep.append(fi)
+    return np.unique(np.concatenate(keep)).astype(np.int64)
 
 
-def _event_shapes(events: list[dict[str, Any]]) -> tuple[list[dict], list[dict]]:
+def _event_marks(events: list[dict[str, Any]], t_span: tuple[float, float]) -> tuple[list[dict], list[dict]]:
+    """A dotted line per event and a small number above the plot (the full label on hover and in
+    the scenario's event list), staggered in two rows where events are close, so labels never
+    overprint whatever the width of the screen. Truth events (a spin-out…) are red."""
     shapes, notes = [], []
-    for e in events:
+    width = max(t_span[1] - t_span[0], 1e-9)
+    last_t = -math.inf
+    row = 1
+    for k, e in enumerate(events, start=1):
         t = float(e["t_s"])
+        label = str(e.get("label", ""))
+        truth_event = label.split(" (")[0] in TRUTH_EVENTS or e.get("kind") == "truth"
+        colour = "#b42318" if truth_event else "#667085"
         shapes.append({"type": "line", "xref": "x", "yref": "paper", "x0": t, "x1": t, "y0": 0, "y1": 1,
-                       "line": {"color": "#888", "width": 1, "dash": "dot"}})
-        notes.append({"x": t, "xref": "x", "y": 1.0, "yref": "paper", "yanchor": "bottom",
-                      "text": str(e.get("label", "")), "showarrow": False,
-                      "font": {"size": 10, "color": "#555"}, "textangle": 0})
+                       "line": {"color": colour, "width": 1.2 if truth_event else 1, "dash": "dot"}})
+        row = 1 - row if (t - last_t) / width < 0.05 else 0
+        last_t = t
+        notes.append({"x": t, "xref": "x", "y": 1.0 + 0.055 * row, "yref": "paper", "yanchor": "bottom",
+                      "text": f"<b>{k}</b>", "hovertext": f"{t:g} s — {label}", "showarrow": False,
+                      "font": {"size": 10, "color": colour}, "bgcolor": "rgba(255,255,255,0.85)",
+                      "bordercolor": colour, "borderwidth": 1, "borderpad": 1})
     return shapes, notes
 
 
+def focus_range(truth: np.ndarray, estimates: list[np.ndarray], unit: str) -> tuple[list[float], bool]:
+    """A y range a person can read: the truth's range, widened to hold the 1-99 % quantiles of each
+    estimate but never more than ``FOCUS_SPANS`` truth spans beyond the truth (a start-up interval
+    bound of ±100° or one drifting observer does not flatten every other line). Returns the range
+    and whether some estimate lies outside it (the page then offers "show all")."""
+    tv = truth[np.isfinite(truth)]
+    qs = [np.quantile(e[np.isfinite(e)], FOCUS_QUANTILES) for e in estimates if np.isfinite(e).any()]
+    if tv.size:
+        lo, hi = float(tv.min()), float(tv.max())
+    elif qs:
+        lo, hi = float(min(q[0] for q in qs)), float(max(q[1] for q in qs))
+    else:
+        return [-1.0, 1.0], False
+    span = max(hi - lo, _MIN_SPAN.get(unit, 0.0), 0.1 * max(abs(lo), abs(hi)), 1e-12)
+    cap_lo, cap_hi = lo - FOCUS_SPANS * span, hi + FOCUS_SPANS * span
+    for q in qs:
+        lo, hi = min(lo, max(float(q[0]), cap_lo)), max(hi, min(float(q[1]), cap_hi))
+    pad = 0.06 * max(hi - lo, span)
+    lo, hi = lo - pad, hi + pad
+    clipped = any(np.nanmin(e) < lo or np.nanmax(e) > hi for e in estimates if np.isfinite(e).any())
+    return [lo, hi], clipped
+
+
+def _error_range(errors: list[np.ndarray], truth_span: float, unit: str) -> tuple[list[float], bool]:
+    """Symmetric error axis: the largest 99 % quantile of |error|, capped at the focus span."""
+    q = [float(np.quantile(np.abs(e[np.isfinite(e)]), FOCUS_QUANTILES[1])) for e in errors if np.isfinite(e).any()]
+    if not q:
+        return [-1.0, 1.0], False
+    cap = FOCUS_SPANS * max(truth_span, _MIN_SPAN.get(unit, 0.0), 1e-12)
+    e = 1.1 * max(min(max(q), cap), 1e-12)
+    clipped = any(np.nanmax(np.abs(x)) > e for x in errors if np.isfinite(x).any())
+    return [-e, e], clipped
+
+
 def state_figure(
-    state: str, truth: pd.DataFrame, estimates: pd.DataFrame, colours: dict[str, str],
-    events: list[dict[str, Any]],
+    state: str, truth: pd.DataFrame, estimates: pd.DataFrame, styles: dict[str, Any],
+    events: list[dict[str, Any]], scored_until_s: float | None = None, unscored_reason: str = "",
 ) -> dict[str, Any]:
-    """Truth and every observer's estimate (with bounds as a band) on top, the errors below."""
+    """Truth and every observer's estimate (with bounds as a band) on top, the errors below.
+
+    ``styles`` maps observer -> ``LineStyle`` (see ``observer_style``). Axes are focused on the
+    truth (``focus_range``) with buttons to show everything. After ``scored_until_s`` (a spin-out,
+    a roll-over) the plot is shaded: that part is drawn but not scored.
+    """
     scale, unit = display_unit(state)
     traces: list[dict[str, Any]] = []
     if state in truth.columns:
-        idx = _decimate(len(truth))
         t_truth = truth["t_s"].to_numpy(float)
         y_truth = truth[state].to_numpy(float)
+        idx = decimate(t_truth, y_truth)
         traces.append({"type": "scatter", "mode": "lines", "name": "truth", "legendgroup": "truth",
                        "x": _round(t_truth[idx]), "y": _round(y_truth[idx] * scale),
                        "line": {"color": TRUTH_COLOUR, "width": 2.2}, "xaxis": "x", "yaxis": "y"})
     else:
         t_truth = y_truth = np.empty(0)
     rows = estimates[estimates["state"] == state] if len(estimates) else estimates
+    values, errors, t_ends = [], [], [float(t_truth[-1])] if t_truth.size else []
     for obs, g in rows.groupby("observer", sort=False):
-        colour = colours.get(str(obs), "#444")
+        style = styles.get(str(obs)) or observer_style(str(obs))
+        g = g.sort_values("t_s", kind="stable")
         t = g["t_s"].to_numpy(float)
         v = g["value"].to_numpy(float)
-        idx = _decimate(t.size)
+        if t.size:
+            t_ends.append(float(t[-1]))
+        values.append(v * scale)
         lo = g["lo"].to_numpy(float) if "lo" in g else np.full(t.size, np.nan)
         hi = g["hi"].to_numpy(float) if "hi" in g else np.full(t.size, np.nan)
         if np.isfinite(lo).any() and np.isfinite(hi).any():
-            band_x = np.concatenate([t[idx], t[idx][::-1]])
-            band_y = np.concatenate([hi[idx], lo[idx][::-1]]) * scale
+            ilo, ihi = decimate(t, lo), decimate(t, hi)
+            band_x = np.concatenate([t[ihi], t[ilo][::-1]])
+            band_y = np.concatenate([hi[ihi], lo[ilo][::-1]]) * scale
             traces.append({"type": "scatter", "mode": "lines", "name": f"{obs} bounds",
                            "legendgroup": str(obs), "showlegend": False, "hoverinfo": "skip",
                            "x": _round(band_x), "y": _round(band_y), "fill": "toself",
-                           "fillcolor": _alpha(colour, 0.15), "line": {"width": 0}, "xaxis": "x", "yaxis": "y"})
-        traces.append({"type": "scatter", "mode": "lines", "name": str(obs), "legendgroup": str(obs),
-                       "x": _round(t[idx]), "y": _round(v[idx] * scale),
-                       "line": {"color": colour, "width": 1.4}, "xaxis": "x", "yaxis": "y"})
+                           "fillcolor": _alpha(style.colour, 0.13), "line": {"width": 0}, "xaxis": "x", "yaxis": "y"})
+        err = np.empty(0)
         if t_truth.size:
-            # Error on the estimate's own times against the truth held at those times.
-            j = np.clip(np.searchsorted(t_truth, t[idx] + 1e-9, side="right") - 1, 0, t_truth.size - 1)
-            err = v[idx] - y_truth[j]
+            # Error at every estimate sample against the truth held at that time; the samples kept
+            # are those that hold the extremes of the estimate or of its error.
+            j = np.clip(np.searchsorted(t_truth, t + 1e-9, side="right") - 1, 0, t_truth.size - 1)
+            err = v - y_truth[j]
             if state.endswith("_rad"):
                 err = np.pi - np.mod(np.pi - err, 2 * np.pi)
+            err = err * scale
+            errors.append(err)
+            idx = np.union1d(decimate(t, v, MAX_POINTS // 2), decimate(t, err, MAX_POINTS // 2))
+        else:
+            idx = decimate(t, v)
+        traces.append({"type": "scatter", "mode": "lines", "name": str(obs), "legendgroup": str(obs),
+                       "x": _round(t[idx]), "y": _round(v[idx] * scale),
+                       "line": style.plotly_line(1.4), "xaxis": "x", "yaxis": "y"})
+        if err.size:
             traces.append({"type": "scatter", "mode": "lines", "name": f"{obs} error",
                            "legendgroup": str(obs), "showlegend": False,
-                           "x": _round(t[idx]), "y": _round(err * scale),
-                           "line": {"color": colour, "width": 1.1}, "xaxis": "x", "yaxis": "y2"})
-    shapes, notes = _event_shapes(events)
+                           "x": _round(t[idx]), "y": _round(err[idx]),
+                           "line": style.plotly_line(1.1), "xaxis": "x", "yaxis": "y2"})
+    t0 = float(t_truth[0]) if t_truth.size else 0.0
+    t_span = (t0, max(t_ends) if t_ends else t0 + 1.0)
+    shapes, notes = _event_marks(events, t_span)
+    y_range, clipped = focus_range(y_truth * scale, values, unit)
+    tv = y_truth[np.isfinite(y_truth)] * scale
+    e_range, e_clipped = _error_range(errors, float(tv.max() - tv.min()) if tv.size else 0.0, unit)
+    if scored_until_s is not None and math.isfinite(scored_until_s) and scored_until_s < t_span[1]:
+        shapes.append({"type": "rect", "xref": "x", "yref": "paper", "x0": scored_until_s, "x1": t_span[1],
+                       "y0": 0, "y1": 1, "fillcolor": "rgba(120,120,120,0.16)", "line": {"width": 0},
+                       "layer": "below"})
+        notes.append({"x": scored_until_s, "xref": "x", "y": 0.99, "yref": "paper", "xanchor": "left",
+                      "yanchor": "top", "showarrow": False, "font": {"size": 10, "color": "#475467"},
+                      "text": "not scored" + (f" ({unscored_reason})" if unscored_reason else ""),
+                      "hovertext": f"from {scored_until_s:g} s on: drawn, not scored"})
     label = state_label(state)
     layout = {
-        "height": 450, "margin": {"l": 60, "r": 10, "t": 36, "b": 40},
-        "title": {"text": f"{label} [{unit}]", "font": {"size": 14}, "x": 0.01},
+        "height": 450, "margin": {"l": 56, "r": 8, "t": 58, "b": 40},
+        "title": {"text": f"{label} [{unit}]", "font": {"size": 14}, "x": 0.01, "y": 0.985, "yanchor": "top"},
         "xaxis": {"anchor": "y2", "title": {"text": "t [s]"}, "zeroline": False},
-        "yaxis": {"domain": [0.38, 1.0], "title": {"text": f"{unit}"}, "zeroline": False},
-        "yaxis2": {"domain": [0.0, 0.28], "title": {"text": "error"}, "zeroline": True,
-                   "zerolinecolor": "#bbb"},
+        "yaxis": {"domain": [0.38, 1.0], "title": {"text": f"{unit}"}, "zeroline": False, "range": y_range},
+        "yaxis2": {"domain": [0.0, 0.28], "title": {"text": f"error [{unit}]"}, "zeroline": True,
+                   "zerolinecolor": "#bbb", "range": e_range},
         "legend": {"orientation": "h", "y": -0.22, "font": {"size": 11}},
         "shapes": shapes, "annotations": notes, "hovermode": "x",
         "plot_bgcolor": "#fff", "paper_bgcolor": "#fff",
+        "updatemenus": [{
+            "type": "buttons", "direction": "left", "showactive": True, "active": 0,
+            # In the gap between the two panels, clear of the title, event numbers and tool bar.
+            "x": 1.0, "xanchor": "right", "y": 0.33, "yanchor": "middle", "pad": {"t": 0, "b": 0},
+            "font": {"size": 10}, "bgcolor": "#f6f7f9", "bordercolor": "#d0d5dd",
+            "buttons": [
+                {"label": "focus", "method": "relayout",
+                 "args": [{"yaxis.range": y_range, "yaxis2.range": e_range}]},
+                {"label": "show all" + (" ⚠" if clipped or e_clipped else ""), "method": "relayout",
+                 "args": [{"yaxis.autorange": True, "yaxis2.autorange": True}]},
+            ]}],
     }
-    return {"data": traces, "layout": layout}
+    return {"data": traces, "layout": layout, "meta": {"clipped": bool(clipped or e_clipped)}}
 
 
 def mu_colour(mu: float) -> str:
@@ -190,7 +329,7 @@ def trajectory_figure(truth: pd.DataFrame, info: dict[str, Any], events: list[di
                        "text": [f"{p.get('surface') or p.get('name', '')} μ={float(p.get('mu', 1.0)):.2f}{when}"],
                        "textfont": {"size": 11, "color": "#234"}})
     if x.size:
-        idx = _decimate(x.size)
+        idx = np.unique(np.concatenate([decimate(x, x), decimate(x, y)]))
         traces.append({"type": "scatter", "mode": "lines", "name": "CG path", "x": _round(x[idx]),
                        "y": _round(y[idx]), "line": {"color": "#c0392b", "width": 2.5}})
         t = truth["t_s"].to_numpy(float)
@@ -198,8 +337,11 @@ def trajectory_figure(truth: pd.DataFrame, info: dict[str, Any], events: list[di
         if ev_t:
             j = np.clip(np.searchsorted(t, ev_t), 0, t.size - 1)
             traces.append({"type": "scatter", "mode": "markers+text", "name": "events",
-                           "x": _round(x[j]), "y": _round(y[j]), "text": [str(e.get("label", "")) for e in events],
-                           "textposition": "top center", "textfont": {"size": 10},
+                           "x": _round(x[j]), "y": _round(y[j]),
+                           # Numbers as in the time plots and the event list; full labels on hover.
+                           "text": [str(k) for k in range(1, len(events) + 1)],
+                           "hovertext": [f"{float(e['t_s']):g} s — {e.get('label', '')}" for e in events],
+                           "hoverinfo": "text", "textposition": "top center", "textfont": {"size": 10},
                            "marker": {"size": 7, "color": "#333", "symbol": "diamond"}})
     mu0 = info.get("friction", {}).get("mu_default")
     layout = {

@@ -21,18 +21,19 @@
     return worst > 0 ? Math.abs(v) / worst : 0;
   }
 
-  function score(v, sense) {  // lower = better, for ranking
+  function score(v, sense) {  // lower = better, for sorting a scenario column
     if (v === null || !isFinite(v)) return Infinity;
     if (sense === "high") return -v;
     if (sense === "one") return Math.abs(Math.log(Math.max(v, 1e-12)));
     return Math.abs(v);
   }
 
+  // Values and colours per cell; ranks are not computed here: they come from the report builder
+  // (data-ranks on cells, data-mean-ranks on rows), the same numbers as the summary cards.
   function paintTable(table, metric, sense) {
     var rows = Array.prototype.slice.call(table.tBodies[0].rows);
     if (!rows.length) return;
     var ncell = rows[0].querySelectorAll("td.cell").length;
-    var ranks = rows.map(function () { return []; });
     for (var j = 0; j < ncell; j++) {
       var cells = rows.map(function (r) { return r.querySelectorAll("td.cell")[j]; });
       var vals = cells.map(function (c) {
@@ -40,26 +41,40 @@
         var v = JSON.parse(c.dataset.values)[metric];
         return (v === null || v === undefined) ? null : v;
       });
-      var present = cells.map(function (c) { return c && c.dataset.status !== "absent"; });
-      var order = vals.map(function (v, i) { return [score(v, sense), i]; })
-        .filter(function (p, i) { return present[i]; })
-        .sort(function (a, b) { return a[0] - b[0]; });
-      order.forEach(function (p, k) { ranks[p[1]].push(k + 1); });
       cells.forEach(function (c, i) {
         if (!c || c.dataset.status !== "ok") return;
         var v = vals[i];
+        var rk = c.dataset.ranks ? JSON.parse(c.dataset.ranks)[metric] : null;
         c.textContent = fmt(v);
+        if (rk) {
+          var sup = document.createElement("sup");
+          sup.className = "rk";
+          sup.textContent = "#" + rk;
+          c.appendChild(sup);
+        }
+        c.dataset.sortValue = v === null ? "Infinity" : String(score(v, sense));
         if (v === null) { c.style.background = "#f2f4f7"; return; }
         var b = badness(v, vals, sense);
         c.style.background = "hsl(" + Math.round(125 * (1 - b)) + ", 62%, " + (88 - 6 * (1 - Math.abs(0.5 - b))) + "%)";
       });
     }
-    rows.forEach(function (r, i) {
-      var rk = ranks[i];
+    rows.forEach(function (r) {
+      var all = r.dataset.meanRanks ? JSON.parse(r.dataset.meanRanks) : {};
+      var mr = all[metric] || { mean: null, n: 0, of: 0 };
       var cell = r.querySelector("td.rank");
-      var m = rk.length ? rk.reduce(function (a, b) { return a + b; }, 0) / rk.length : null;
-      cell.textContent = m === null ? "—" : m.toFixed(1);
-      cell.dataset.sortValue = m === null ? "Infinity" : String(m);
+      cell.textContent = "";
+      if (mr.mean === null || mr.mean === undefined) {
+        cell.textContent = "—";
+        cell.title = "not ranked in any scenario for this metric";
+      } else {
+        cell.appendChild(document.createTextNode(mr.mean.toFixed(1) + " "));
+        var cov = document.createElement("span");
+        cov.className = "cov";
+        cov.textContent = "over " + mr.n + " of " + mr.of;
+        cell.appendChild(cov);
+        cell.title = "mean rank over the " + mr.n + " of " + mr.of + " scenarios where it was scored";
+      }
+      cell.dataset.sortValue = (mr.mean === null || mr.mean === undefined) ? "Infinity" : String(mr.mean);
     });
   }
 
@@ -74,10 +89,7 @@
   function sortValue(cell, kind) {
     if (kind === "text") return cell.textContent.trim().toLowerCase();
     if (cell.dataset.sortValue !== undefined) return parseFloat(cell.dataset.sortValue);
-    var v = parseFloat(cell.textContent);
-    if (cell.classList.contains("failed") || cell.classList.contains("absent") || isNaN(v)) return Infinity;
-    var input = document.querySelector("input[name=lb-metric]:checked");
-    return input ? score(v, input.dataset.sense) : v;
+    return Infinity;  // failed, not applicable and empty cells sort after every scored one
   }
 
   function makeSortable(table) {
@@ -106,7 +118,18 @@
     if (!node || typeof Plotly === "undefined") return;
     var spec = JSON.parse(node.textContent);
     div.innerHTML = "";
-    Plotly.newPlot(div, spec.data, spec.layout, { responsive: true, displaylogo: false });
+    // On a narrow screen the horizontal legend wraps onto many rows: give the figure the height
+    // those rows take, so the plot area itself keeps its size.
+    var w = div.clientWidth || window.innerWidth;
+    var layout = spec.layout;
+    if (layout.legend && layout.legend.orientation === "h" && w < 700) {
+      var n = spec.data.filter(function (t) { return t.showlegend !== false && t.name; }).length;
+      var perRow = Math.max(1, Math.floor(w / 140));
+      layout.height = (layout.height || 450) + 22 * Math.ceil(n / perRow);
+      layout.margin = Object.assign({}, layout.margin || {}, { l: 44, r: 4 });
+    }
+    // The tool bar would cover the title on a narrow screen; zoom and pan still work by touch.
+    Plotly.newPlot(div, spec.data, layout, { responsive: true, displaylogo: false, displayModeBar: w >= 700 ? "hover" : false });
     div.dataset.drawn = "1";
     document.body.dataset.plotsDrawn = String(document.querySelectorAll("div.plot[data-drawn]").length);
   }

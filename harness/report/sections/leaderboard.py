@@ -1,4 +1,8 @@
-"""Leaderboard: one table per state, observers × scenarios, coloured and sortable in the page."""
+"""Leaderboard: one table per state, observers × scenarios, coloured and sortable in the page.
+
+Cells say one of three things: a number (scored), a grey "n/a — needs radar" (not applicable), or
+a red status (failed: the estimate is not usable). Ranks come from ``harness.report.ranking``,
+computed here for every switchable metric; the page only shows them."""
 
 from __future__ import annotations
 
@@ -8,8 +12,10 @@ from typing import Any
 import pandas as pd
 
 from harness.report.figures import display_unit, state_label
+from harness.report.ranking import MeanRank, rank_state
 from harness.report.rundata import RunData
 from harness.report.sections.base import Section
+from harness.report.verdicts import ABSENT, FAILED, NOT_APPLICABLE, OK, status_kind, status_label
 
 #: Metrics the page can switch between: (column, label, scaled by the state's display unit?, sense).
 #: sense: "low" = lower is better, "high" = higher is better, "one" = closer to 1 is better.
@@ -59,39 +65,81 @@ def _num(v: Any, scale: float = 1.0) -> float | None:
     return f * scale if math.isfinite(f) else None
 
 
+def state_ranks(run: RunData, state: str, column: str = "rmse",
+                scenarios: list[str] | None = None) -> dict[str, MeanRank]:
+    """Mean ranks of every observer on one state and metric: the one function behind the
+    leaderboard's rank column and the summary's best-observer cards."""
+    sense = next((sense for col, _, _, sense in SWITCHABLE if col == column), "low")
+    scaled = next((sc for col, _, sc, _ in SWITCHABLE if col == column), False)
+    scale = display_unit(state)[0] if scaled else 1.0
+    return rank_state(state_rows(run, state), state, column, sense, scenarios if scenarios is not None else
+                      table_scenarios(run, state), scale=scale)
+
+
+def state_rows(run: RunData, state: str) -> pd.DataFrame:
+    """The metrics rows of one state, plus the run-level rows (empty state: the observer errored
+    before giving any estimate) of observers that declare this state in run.json, so that a
+    crashed observer shows as failed in the table of each state it estimates instead of vanishing."""
+    m = run.metrics
+    declared = {str(o.get("name")) for o in run.run.get("observers", [])
+                if isinstance(o, dict) and state in (o.get("states") or [])}
+    extra = m[(m["state"] == "") & m["observer"].astype(str).isin(declared)]
+    have = set(zip(m.loc[m["state"] == state, "observer"].astype(str), m.loc[m["state"] == state, "scenario"].astype(str),
+                   strict=True))
+    extra = extra[[(str(o), str(sc)) not in have for o, sc in zip(extra["observer"], extra["scenario"], strict=True)]]
+    return pd.concat([m[m["state"] == state], extra.assign(state=state)], ignore_index=True)
+
+
+def table_scenarios(run: RunData, state: str) -> list[str]:
+    """Scenario columns of a state's table: those where some observer ran (ok or failed). A column
+    where every observer was not applicable (no radar, say) would only say "n/a" in each row."""
+    sm = state_rows(run, state)
+    kinds = sm.assign(kind=sm["status"].astype(str).map(status_kind))
+    used = set(kinds.loc[kinds["kind"] != NOT_APPLICABLE, "scenario"].astype(str))
+    return [s for s in run.scenario_names if s in used]
+
+
 class LeaderboardSection(Section):
     template = "leaderboard.html"
     title = "Leaderboard"
     anchor = "leaderboard"
 
     def context(self, run: RunData, page: Any) -> dict[str, Any]:
-        m = run.metrics
-        scenarios = run.scenario_names
         tables = []
         for state in run.scored_states:
             scale, unit = display_unit(state)
-            sm = m[m["state"] == state]
+            scenarios = table_scenarios(run, state)
+            sm = state_rows(run, state)
             observers = list(dict.fromkeys(sm["observer"].astype(str)))
+            ranks = {col: state_ranks(run, state, col, scenarios) for col, _, _, _ in SWITCHABLE}
+            # One pass over the rows (first row per observer × scenario), not a filter per cell.
+            by_cell = {(str(r["observer"]), str(r["scenario"])): r
+                       for r in reversed(sm.to_dict("records"))}
             rows = []
             for obs in observers:
-                om = sm[sm["observer"] == obs]
                 cells = []
                 for scen in scenarios:
-                    r = om[om["scenario"] == scen]
-                    if r.empty:
-                        cells.append({"present": False})
+                    r0 = by_cell.get((obs, scen))
+                    if r0 is None:
+                        cells.append({"present": False, "kind": ABSENT})
                         continue
-                    r0 = r.iloc[0]
                     status = str(r0["status"])
                     values = {col: _num(r0.get(col), scale if scaled else 1.0)
                               for col, _, scaled, _ in SWITCHABLE}
-                    cells.append({"present": True, "status": status, "short": short_status(status),
-                                  "ok": short_status(status) == "ok", "values": values,
+                    cell_ranks = {col: ranks[col][obs].ranks.get(scen) for col in ranks}
+                    cells.append({"present": True, "status": status, "kind": status_kind(status),
+                                  "label": status_label(status), "short": short_status(status),
+                                  "ok": status_kind(status) == OK, "values": values, "ranks": cell_ranks,
                                   "certified": _truthy(r0.get("certified"))})
+                mean_ranks = {col: {"mean": ranks[col][obs].mean, "n": ranks[col][obs].n_ranked,
+                                    "of": ranks[col][obs].n_scenarios} for col in ranks}
                 rows.append({"observer": obs, "colour": page.colours.get(obs, "#444"),
+                             "swatch": page.swatch(obs),
                              "design": page.designs.get(obs, "not_applicable"), "cells": cells,
-                             "failures": sum(1 for c in cells if c.get("present") and not c["ok"])})
-            tables.append({"state": state, "label": state_label(state), "unit": unit, "rows": rows})
+                             "mean_ranks": mean_ranks, "rmse_rank": ranks["rmse"][obs],
+                             "failures": sum(1 for c in cells if c["kind"] == FAILED)})
+            tables.append({"state": state, "label": state_label(state), "unit": unit, "rows": rows,
+                           "scenarios": scenarios})
         metrics = [{"col": c, "label": lab, "sense": sense, "scaled": sc} for c, lab, sc, sense in SWITCHABLE]
         unscored = [s for s in run.states if s not in run.scored_states]
-        return {"tables": tables, "scenarios": scenarios, "metrics": metrics, "unscored": unscored}
+        return {"tables": tables, "metrics": metrics, "unscored": unscored}

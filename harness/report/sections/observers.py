@@ -1,4 +1,5 @@
-"""Observers: citation, certification of the LMI design, cost per step, statuses per scenario."""
+"""Observers: citation, certification of the LMI design, cost per step, and per scenario whether the
+run was ok, not applicable (grey) or failed (red) — three separate things."""
 
 from __future__ import annotations
 
@@ -6,7 +7,14 @@ from typing import Any
 
 from harness.report.rundata import RunData
 from harness.report.sections.base import Section
-from harness.report.sections.leaderboard import short_status
+from harness.report.verdicts import (
+    FAILED,
+    NOT_APPLICABLE,
+    count_statuses,
+    run_verdict,
+    status_kind,
+    status_label,
+)
 
 
 class ObserversSection(Section):
@@ -25,20 +33,24 @@ class ObserversSection(Section):
             statuses = []
             reasons = []
             for scen in run.scenario_names:
-                if not om[om["scenario"] == scen].empty:
-                    status = run.run_status(scen, obs)
-                    statuses.append({"scenario": scen, "status": status, "short": short_status(status)})
+                rows_here = om[om["scenario"] == scen]
+                if not rows_here.empty:
+                    status = run_verdict(run.run_status(scen, obs), rows_here["status"].astype(str))
+                    statuses.append({"scenario": scen, "status": status, "kind": status_kind(status),
+                                     "label": status_label(status)})
                 r = runs.get(scen, {}).get(obs, {})
                 if r.get("design_reason"):
                     reasons.append(str(r["design_reason"]))
             meta = info.get(obs, {})
             rows.append({
-                "name": obs, "colour": page.colours.get(obs, "#444"),
+                "name": obs, "colour": page.colours.get(obs, "#444"), "swatch": page.swatch(obs),
                 "citation": meta.get("citation", ""), "states": meta.get("states") or sorted(set(om["state"])),
                 "design": page.designs.get(obs, "not_applicable"),
                 "design_reason": "; ".join(dict.fromkeys(reasons)),
                 "us_per_step": float(us.median()) if len(us) else None,
                 "statuses": statuses,
-                "n_failed": sum(1 for s in statuses if s["short"] != "ok"),
+                "counts": count_statuses(s["status"] for s in statuses),
+                "na_labels": sorted({s["label"] for s in statuses if s["kind"] == NOT_APPLICABLE}),
+                "n_failed": sum(1 for s in statuses if s["kind"] == FAILED),
             })
         return {"rows": rows}

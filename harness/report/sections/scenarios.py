@@ -3,16 +3,53 @@ rendered frames and the video."""
 
 from __future__ import annotations
 
+import math
 import re
 from typing import Any
 
-from harness.report.figures import state_figure, trajectory_figure
+import pandas as pd
+
+from harness.report.figures import TRUTH_EVENTS, state_figure, trajectory_figure
 from harness.report.rundata import RunData
 from harness.report.sections.base import Section
 
 
 def slug(text: str) -> str:
     return re.sub(r"[^a-zA-Z0-9_-]+", "-", text).strip("-") or "x"
+
+
+def truth_events(entry: dict[str, Any], events: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """What the car did that no observer is to blame for (spun out, left the road, …), with times:
+    run.json's ``truth_events`` when the run wrote them, else those events of ``events.json``."""
+    listed = entry.get("truth_events")
+    if isinstance(listed, list):
+        out = [e for e in listed if isinstance(e, dict) and isinstance(e.get("t_s"), int | float)]
+    else:
+        out = [e for e in events if str(e.get("label", "")).split(" (")[0] in TRUTH_EVENTS or e.get("kind") == "truth"]
+    return sorted(out, key=lambda e: float(e["t_s"]))
+
+
+def truth_summary(entry: dict[str, Any], events: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The truth's status for the scenario header: ``{"text", "bad"}``, or None when the run folder
+    does not say (older runs)."""
+    evs = truth_events(entry, events)
+    status = entry.get("truth_status")
+    if evs:
+        text = "; ".join(f"{e.get('label', '')} at {float(e['t_s']):.3g} s" for e in evs)
+        return {"text": text, "bad": True}
+    if isinstance(status, str) and status:
+        return {"text": status, "bad": status != "ok"}
+    return None
+
+
+def scored_until(metrics: pd.DataFrame) -> float | None:
+    """Where scoring of a scenario stopped (``scored_until_s`` column, earliest finite value), or
+    None when the column is absent or every row was scored to the end."""
+    if "scored_until_s" not in metrics.columns:
+        return None
+    v = pd.to_numeric(metrics["scored_until_s"], errors="coerce").dropna()
+    v = v[v.map(math.isfinite)]
+    return float(v.min()) if len(v) else None
 
 
 class ScenariosSection(Section):
@@ -34,11 +71,19 @@ class ScenariosSection(Section):
             sm = run.metrics[run.metrics["scenario"] == name]
             ok = sm["status"].astype(str).str.startswith("ok") & sm["rmse"].notna()
             states = [s for s in run.scored_states if s in set(sm.loc[ok, "state"])]
+            until = scored_until(sm)
+            t_end = float(truth["t_s"].iloc[-1]) if "t_s" in truth.columns and len(truth) else None
+            if until is not None and t_end is not None and until >= t_end - 1e-9:
+                until = None
+            tevs = truth_events(entry, events)
+            reason = next((str(e.get("label", "")) for e in reversed(tevs)
+                           if until is not None and float(e["t_s"]) <= until + 1e-6), "")
             for state in states:
                 if truth.empty and est.empty:
                     break
                 figures.append({"id": f"fig-{slug(name)}-{slug(state)}",
-                                "spec": state_figure(state, truth, est, page.colours, events), "wide": False})
+                                "spec": state_figure(state, truth, est, page.styles, events, until, reason),
+                                "wide": False})
             render = entry.get("render", {}) or {}
             frames = [f for f in render.get("frames", []) if (run.folder / f.get("file", "")).is_file()]
             video = render.get("video")
@@ -49,6 +94,9 @@ class ScenariosSection(Section):
                 "description": entry.get("description") or info.get("description", ""),
                 "tags": entry.get("tags") or info.get("tags", []),
                 "status": entry.get("status", "ok"),
+                "truth": truth_summary(entry, events),
+                "scored_until_s": until,
+                "unscored_reason": reason,
                 "duration_s": entry.get("duration_s") or info.get("duration_s"),
                 "vehicle": entry.get("vehicle") or info.get("vehicle"),
                 "seed": entry.get("seed"),

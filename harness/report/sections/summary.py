@@ -1,14 +1,35 @@
-"""Summary: what was run, how long it took, what failed, and whether frames could be rendered."""
+"""Summary: what was run, how long it took, what failed (and, apart from it, what could not run),
+what the truth did, and whether frames could be rendered."""
 
 from __future__ import annotations
 
 from typing import Any
 
 from harness.report.figures import display_unit, state_label
+from harness.report.ranking import leaders as best_of
 from harness.report.rundata import RunData
 from harness.report.sections.base import Section
-from harness.report.sections.leaderboard import short_status
-from harness.report.sections.scenarios import slug
+from harness.report.sections.leaderboard import state_ranks
+from harness.report.sections.scenarios import slug, truth_summary
+from harness.report.verdicts import (
+    FAILED,
+    NOT_APPLICABLE,
+    count_statuses,
+    run_verdict,
+    status_kind,
+    status_label,
+)
+
+
+def observer_run_statuses(run: RunData) -> list[dict[str, str]]:
+    """One entry per (scenario, observer) run: its status as counted, kind and short label."""
+    m = run.metrics
+    out = []
+    for (scen, obs), g in m.groupby(["scenario", "observer"], sort=False):
+        status = run_verdict(run.run_status(str(scen), str(obs)), g["status"].astype(str))
+        out.append({"scenario": str(scen), "observer": str(obs), "status": status,
+                    "kind": status_kind(status), "label": status_label(status)})
+    return out
 
 
 class SummarySection(Section):
@@ -17,17 +38,24 @@ class SummarySection(Section):
     anchor = "summary"
 
     def context(self, run: RunData, page: Any) -> dict[str, Any]:
-        m = run.metrics
-        failures = []
-        for r in m.drop_duplicates(["scenario", "observer"]).itertuples():
-            status = run.run_status(str(r.scenario), str(r.observer))
-            if short_status(status) != "ok":
-                failures.append({"scenario": r.scenario, "observer": r.observer, "status": status})
+        runs = observer_run_statuses(run)
+        counts = count_statuses(r["status"] for r in runs)
+        failures = [r for r in runs if r["kind"] == FAILED]
+        # Not applicable, grouped by reason: "hgo_radar_multi, hgo_radar_standard on 6 scenarios".
+        na_groups: dict[str, dict[str, set[str]]] = {}
+        for r in runs:
+            if r["kind"] == NOT_APPLICABLE:
+                g = na_groups.setdefault(r["label"], {"observers": set(), "scenarios": set()})
+                g["observers"].add(r["observer"])
+                g["scenarios"].add(r["scenario"])
+        not_applicable = [{"label": k, "observers": sorted(v["observers"]), "n_scenarios": len(v["scenarios"])}
+                          for k, v in sorted(na_groups.items())]
         scen_status = []
         for name in run.scenario_names:
             entry = run.scenario_entry(name)
             scen_status.append({"name": name, "anchor": f"scenario-{slug(name)}",
                                 "status": entry.get("status", "ok"),
+                                "truth": truth_summary(entry, run.scenario(name).events),
                                 "duration_s": entry.get("duration_s")})
         render = run.run.get("render", {})
         if not render:  # e.g. a replay: the scenarios say why there are no frames
@@ -38,11 +66,13 @@ class SummarySection(Section):
             "suite": run.run.get("suite", ""),
             "n_scenarios": len(run.scenario_names),
             "n_observers": len(run.observer_names),
-            "n_rows": len(m),
-            "n_runs": len(m.drop_duplicates(["scenario", "observer"])),
+            "n_rows": len(run.metrics),
+            "n_runs": counts.total,
+            "counts": counts,
             "wall_s": run.run.get("wall_s"),
             "timings": timings,
             "failures": failures,
+            "not_applicable": not_applicable,
             "scenarios": scen_status,
             "render_enabled": render.get("enabled", False),
             "render_reason": render.get("reason"),
@@ -52,26 +82,22 @@ class SummarySection(Section):
 
 
 def leaders(run: RunData, page: Any) -> list[dict[str, Any]]:
-    """Per state, the observer with the best mean RMSE rank over the scenarios (a failure ranks last)."""
+    """Per state, the observer(s) with the best mean RMSE rank among those scored in the most
+    scenarios — from ``state_ranks``, the same function the leaderboard's rank column uses."""
     out = []
     m = run.metrics
     for state in run.scored_states:
-        sm = m[m["state"] == state]
-        observers = sorted(set(sm["observer"]))
-        if not observers:
+        ranks = state_ranks(run, state, "rmse")
+        best = best_of(ranks)
+        if not best:
             continue
-        ranks: dict[str, list[float]] = {o: [] for o in observers}
-        for _, g in sm.groupby("scenario"):
-            ok = g["status"].astype(str).str.startswith("ok") & g["rmse"].notna()
-            order = g[ok].sort_values(["rmse", "observer"])["observer"].tolist()
-            for o in observers:
-                ranks[o].append(order.index(o) + 1 if o in order else len(observers))
-        mean = {o: sum(r) / len(r) for o, r in ranks.items() if r}
-        best = min(mean, key=lambda o: (mean[o], o))
-        rmse = sm[(sm["observer"] == best) & sm["status"].astype(str).str.startswith("ok")]["rmse"]
         scale, unit = display_unit(state)
-        out.append({"state": state, "label": state_label(state), "observer": best,
-                    "colour": page.colours.get(best, "#444"), "mean_rank": mean[best],
-                    "median_rmse": float(rmse.median()) * scale if len(rmse) else None, "unit": unit,
-                    "n": len(observers)})
+        names = [b.observer for b in best]
+        rows = m[(m["state"] == state) & m["observer"].isin(names) & (m["status"].map(status_kind) == "ok")]
+        rmse = rows["rmse"].dropna()
+        out.append({"state": state, "label": state_label(state), "observers": names,
+                    "swatches": [page.swatch(n) for n in names], "mean_rank": best[0].mean,
+                    "n_ranked": best[0].n_ranked, "n_scenarios": best[0].n_scenarios,
+                    "n_observers": sum(1 for r in ranks.values() if r.mean is not None),
+                    "median_rmse": float(rmse.median()) * scale if len(rmse) else None, "unit": unit})
     return out
