@@ -18,6 +18,7 @@ message naming the file and the column; the CLI turns it into exit 2.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from importlib.resources import files
 from pathlib import Path
@@ -90,6 +91,12 @@ _PLAUSIBLE: tuple[tuple[str, float, str], ...] = (
 )
 
 LOG_SUFFIXES = (".csv", ".csv.gz", ".gz", ".txt", ".parquet", ".pq", ".mat")
+
+#: Plausible median time step of a vehicle log [s]: 100 kHz to 1 Hz. Outside it the time column is
+#: almost surely in another unit (µs or ms read as s gives steps of 1 to 10^4 "s"; ns gives < 1e-5).
+TIME_STEP_RANGE_S = (1e-5, 1.0)
+# A time column named like this is not in seconds unless the map says so (``unit: ms``/``us``).
+_TIME_NAME_UNIT = re.compile(r"(?:^|[^a-z])(ms|msec|millis|us|usec|micros|µs|ns|nsec|nanos)$")
 
 
 def si_unit_of(name: str) -> str:
@@ -371,6 +378,30 @@ def check_plausible(name: str, values: np.ndarray, column: str, source: str) -> 
                        source=source)
 
 
+def check_time_unit(spec: ChannelSpec, dt_s: np.ndarray, source: str) -> None:
+    """Raise ``LogError`` when the time column is evidently not in seconds after the map's unit.
+
+    Evidence: the column's name ends in a unit (``t_us``, ``time_ms``) the map does not state, or the
+    median step is outside ``TIME_STEP_RANGE_S`` (a 100 Hz log in µs read as s steps by 10^4 "s").
+    """
+    hint = _TIME_NAME_UNIT.search(spec.column.strip().lower())
+    if hint and not spec.unit and spec.scale == 1.0:
+        unit = {"ms": "ms", "msec": "ms", "millis": "ms", "ns": "ns", "nsec": "ns", "nanos": "ns"}.get(
+            hint.group(1), "us")
+        fix = f"unit: {unit}" if unit in UNITS else "scale: 1e-9"
+        raise LogError(f"time column {spec.column!r} is named as {unit} but read as seconds: state it in the "
+                       f"column map (time: {{column: {spec.column}, {fix}}})", source=source)
+    if dt_s.size == 0:
+        return
+    h = float(np.median(dt_s))
+    lo, hi = TIME_STEP_RANGE_S
+    if not lo <= h < hi:
+        guess = "µs or ms" if h > hi else "ns"
+        raise LogError(f"time column {spec.column!r}: median step {h:.6g} s is implausible for a vehicle log "
+                       f"(expected {lo:g} s to below {hi:g} s): a time in {guess} read as seconds? Set 'unit' "
+                       "(ms, us) or 'scale' of time in the column map", source=source)
+
+
 def apply_map(raw: pd.DataFrame, cmap: ColumnMap, source: str) -> pd.DataFrame:
     """Canonical frame ``t_s`` + every mapped channel in SI, checked.
 
@@ -397,6 +428,15 @@ def apply_map(raw: pd.DataFrame, cmap: ColumnMap, source: str) -> pd.DataFrame:
     out: dict[str, np.ndarray] = {}
     for name, c in cmap.channels.items():
         out[name] = _numeric(raw, c.column, source, name) * (c.factor * c.scale) + c.offset
+    for name, c in cmap.channels.items():
+        inf = np.isinf(out[name])
+        if inf.any() and name != "t_s":
+            # An overflow or "no data" marker of the logger, not a measurement: refused rather than
+            # silently turned into NaN (an empty cell is how a log says "missing").
+            i = int(np.flatnonzero(inf)[0])
+            raise LogError(f"column {c.column!r} ({name}) has an infinite value at row {i + 1} "
+                           f"({'+' if out[name][i] > 0 else '-'}inf; {int(inf.sum())} such rows): leave the "
+                           "cell empty for a missing sample", source=source)
     t = out["t_s"]
     tcol = cmap.channels["t_s"].column
     bad = ~np.isfinite(t)
@@ -409,6 +449,7 @@ def apply_map(raw: pd.DataFrame, cmap: ColumnMap, source: str) -> pd.DataFrame:
         what = "goes backwards" if dt[i] < 0 else "repeats"
         raise LogError(f"time column {tcol!r} {what} at row {i + 2} (t={t[i]:.6g} then {t[i + 1]:.6g}); "
                        "time must strictly increase", source=source)
+    check_time_unit(cmap.channels["t_s"], dt, source)
     for name, c in cmap.channels.items():
         if name != "t_s":
             check_plausible(name, out[name], c.column, source)

@@ -21,7 +21,7 @@ from harness.driver import DriverSpec, LeadSpec, parse_driver, parse_lead
 from harness.errors import ScenarioError
 from harness.friction_map import FrictionMap, friction_from_spec, parse_friction, parse_interval
 from harness.road import SEGMENT_KINDS, Road, Segment, build_road
-from harness.strict_yaml import Fields, load_mapping
+from harness.strict_yaml import Fields, load_mapping, short_repr
 from harness.vehicle import available_vehicles
 
 #: Below this speed the Magic Formula slip definitions (divided by |vx|) are not meaningful [m/s].
@@ -100,11 +100,13 @@ def available_scenarios() -> list[str]:
 
 
 def load_scenario(name_or_path: str | Path) -> Scenario:
-    """Load a shipped scenario by name (``"step_steer"``) or any scenario YAML by path."""
+    """Load a shipped scenario by name (``"step_steer"``) or any scenario YAML by path (absolute or
+    relative to the working folder; the run folder's sub-folder is named from the scenario's name)."""
     p = Path(name_or_path)
     if p.suffix.lower() not in (".yaml", ".yml"):
+        # A name is one of the shipped library, never a path into or out of it ("../x").
         p = scenarios_dir() / f"{name_or_path}.yaml"
-        if not p.is_file():
+        if str(name_or_path) not in available_scenarios() or not p.is_file():
             raise ScenarioError(f"unknown scenario {str(name_or_path)!r} "
                                 f"(available: {', '.join(available_scenarios())})")
     return parse_scenario(load_mapping(p, ScenarioError), str(p))
@@ -167,7 +169,7 @@ def _road(f: Fields, source: str) -> tuple[Road, float] | None:
         field = f"{r.prefix}.segments[{k}]"
         if not isinstance(item, dict) or len(item) != 1 or next(iter(item)) not in SEGMENT_KINDS:
             raise ScenarioError(f"each segment is one of {', '.join(SEGMENT_KINDS)} with its parameters "
-                                f"(got {item!r})", source=source, field=field)
+                                f"(got {short_repr(item)})", source=source, field=field)
         kind, params = next(iter(item.items()))
         g = Fields(params, source=source, error=ScenarioError, prefix=f"{field}.{kind}")
         length = g.number("length_m", lo=0.0, hi=1e5, lo_open=True)
@@ -227,7 +229,7 @@ def _tags(f: Fields) -> tuple[str, ...]:
     tags = f.items("tags", [])
     for t in tags:
         if not isinstance(t, str) or not t.strip():
-            raise f.fail("tags", f"each tag must be a non-empty string (got {t!r})")
+            raise f.fail("tags", f"each tag must be a non-empty string (got {short_repr(t)})")
     return tuple(tags)
 
 
@@ -247,7 +249,7 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
     name = f.string("name")
     stem = Path(source).stem
     if Path(source).suffix.lower() in (".yaml", ".yml") and name != stem:
-        raise f.fail("name", f"must equal the file name {stem!r} (got {name!r})")
+        raise f.fail("name", f"must equal the file name {stem!r} (got {short_repr(name)})")
     description = f.string("description", "")
     standard = f.string("standard", "")
     tags = _tags(f)
@@ -271,7 +273,7 @@ def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
     preset = sens.string("preset", "automotive", choices=_sensor_presets())
     overrides = sens.raw("overrides", {})
     if not isinstance(overrides, dict):
-        raise sens.fail("overrides", f"must be a mapping (got {overrides!r})")
+        raise sens.fail("overrides", f"must be a mapping (got {short_repr(overrides)})")
     sens.done()
     outages = _outages(f, source)
     lane_gaps = _lane_gaps(f, source)

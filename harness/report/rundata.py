@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -17,74 +18,205 @@ import numpy as np
 import pandas as pd
 
 from harness.errors import InputError
+from harness.strict_yaml import short_repr
 
 
 class RunFolderError(InputError):
-    """A run folder is missing or lacks the files a run writes."""
+    """A run folder is missing, lacks the files a run writes, or holds a file that is malformed or
+    points outside the folder."""
+
+
+#: Folders of a run that are not scenarios (written by the render stage).
+RESERVED_FOLDERS: tuple[str, ...] = ("frames", "videos")
+#: Longest scenario folder name written.
+MAX_FOLDER_NAME = 100
+#: Largest JSON file of a run folder read [bytes] (a run.json of a 144-case sweep is ~1 MB).
+MAX_JSON_BYTES = 64_000_000
+
+
+def inside_folder(root: Path, path: Path, *, source: str | None = None) -> Path:
+    """``path`` with symlinks resolved; ``RunFolderError`` if that leaves ``root``.
+
+    ``root`` must already be resolved. A crafted name (``../../etc``), an absolute path or a symlink
+    pointing elsewhere is refused rather than read.
+    """
+    resolved = Path(path).resolve()
+    if resolved != root and not resolved.is_relative_to(root):
+        raise RunFolderError(f"{str(path)!r} points outside the run folder", source=source or str(root))
+    return resolved
+
+
+def _read_json(path: Path, kind: type, what: str) -> Any:
+    try:
+        if path.stat().st_size > MAX_JSON_BYTES:
+            raise RunFolderError(f"larger than {MAX_JSON_BYTES:,} bytes", source=str(path))
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as e:
+        raise RunFolderError(f"invalid JSON ({e.msg} at line {e.lineno})", source=str(path)) from None
+    except UnicodeDecodeError:
+        raise RunFolderError("not a UTF-8 text file", source=str(path)) from None
+    except OSError as e:
+        raise RunFolderError(f"unreadable ({e.strerror or type(e).__name__})", source=str(path)) from None
+    if not isinstance(data, kind):
+        raise RunFolderError(f"expected a JSON {what}, got {type(data).__name__}", source=str(path))
+    return data
 
 
 def read_metrics(run_dir: Path) -> pd.DataFrame:
     """``metrics.csv`` of a run folder, validated (raises RunFolderError naming the file)."""
+    from harness.metrics_file import read_metrics_file
+
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise RunFolderError("not a run folder (does not exist)", source=str(run_dir))
     path = run_dir / "metrics.csv"
     if not path.is_file():
         raise RunFolderError("missing metrics.csv (not a roadtruth run folder?)", source=str(run_dir))
-    try:
-        m = pd.read_csv(path, keep_default_na=True)
-    except (ValueError, pd.errors.ParserError) as e:
-        raise RunFolderError(f"unreadable CSV ({e})", source=str(path)) from None
-    missing = [c for c in ("scenario", "observer", "state", "rmse", "status") if c not in m.columns]
-    if missing:
-        raise RunFolderError(f"missing columns {missing}", source=str(path))
+    inside_folder(run_dir.resolve(), path)
+    # The validation compare and check apply (columns, numbers, flags, no duplicate rows).
+    m = read_metrics_file(path, error=RunFolderError)
     m["state"] = m["state"].fillna("")
-    m["status"] = m["status"].fillna("ok").astype(str)
     return m
 
 
 def read_run_json(run_dir: Path) -> dict[str, Any]:
-    path = Path(run_dir) / "run.json"
+    """``run.json`` of a run folder as a dict ({} when the folder has none)."""
+    run_dir = Path(run_dir)
+    path = run_dir / "run.json"
     if not path.is_file():
         return {}
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as e:
-        raise RunFolderError(f"invalid JSON ({e.msg} at line {e.lineno})", source=str(path)) from None
-    if not isinstance(data, dict):
-        raise RunFolderError("expected a JSON object", source=str(path))
-    return data
+    inside_folder(run_dir.resolve(), path)
+    return _read_json(path, dict, "object")
+
+
+# What the report reads of run.json: key -> accepted types (None = null). Other keys pass unchecked.
+_RUN_KEYS: dict[str, tuple[type | None, ...]] = {
+    "command": (str,), "suite": (str, None), "scenarios": (list,), "observers": (list,),
+    "observer_runs": (dict,), "render": (dict, None), "versions": (dict,), "timings_s": (dict,),
+    "git_revision": (str, None), "wall_s": (int, float, None), "seed": (int, None), "jobs": (int, None),
+}
+_ENTRY_KEYS: dict[str, tuple[type | None, ...]] = {
+    "name": (str,), "status": (str,), "description": (str, None), "tags": (list,), "render": (dict, None),
+    "timings_s": (dict,), "vehicle": (str, None), "duration_s": (int, float, None), "seed": (int, None),
+}
+_RENDER_KEYS: dict[str, tuple[type | None, ...]] = {
+    "frames": (list,), "video": (str, None), "reason": (str, None),
+}
+
+
+def _check_keys(data: dict[str, Any], spec: dict[str, tuple[type | None, ...]], source: str, where: str) -> None:
+    for key, kinds in spec.items():
+        if key not in data:
+            continue
+        v = data[key]
+        ok = (v is None and None in kinds) or any(
+            k is not None and isinstance(v, k) and not (isinstance(v, bool) and k in (int, float)) for k in kinds)
+        if not ok:
+            names = " or ".join("null" if k is None else {dict: "object", list: "list", str: "string",
+                                                           int: "number", float: "number"}[k] for k in kinds)
+            raise RunFolderError(f"must be {names}, got {type(v).__name__}", source=source, field=f"{where}{key}")
+
+
+def check_run_json(run: dict[str, Any], root: Path, source: str) -> None:
+    """Raise ``RunFolderError`` unless ``run`` has the shape the report reads and every file it
+    names (rendered frames, videos) lies inside the run folder ``root`` (resolved)."""
+    _check_keys(run, _RUN_KEYS, source, "")
+    for i, entry in enumerate(run.get("scenarios", [])):
+        where = f"scenarios[{i}]"
+        if not isinstance(entry, dict) or not isinstance(entry.get("name"), str):
+            raise RunFolderError("each entry must be an object with a string name", source=source, field=where)
+        _check_keys(entry, _ENTRY_KEYS, source, f"{where}.")
+        scenario_folder(root, entry["name"], source=source)
+        render = entry.get("render") or {}
+        _check_keys(render, _RENDER_KEYS, source, f"{where}.render.")
+        files = [f.get("file") if isinstance(f, dict) else f for f in render.get("frames", [])]
+        if render.get("video"):
+            files.append(render["video"])
+        for j, rel in enumerate(files):
+            if not isinstance(rel, str) or not rel:
+                raise RunFolderError("each frame must be an object with a file name", source=source,
+                                     field=f"{where}.render.frames[{j}]")
+            inside_folder(root, root / rel, source=source)
+    for i, obs in enumerate(run.get("observers", [])):
+        if not isinstance(obs, dict):
+            raise RunFolderError("each entry must be an object", source=source, field=f"observers[{i}]")
+    for scen, per_obs in run.get("observer_runs", {}).items():
+        if not isinstance(per_obs, dict) or not all(isinstance(r, dict) for r in per_obs.values()):
+            raise RunFolderError("must map observer names to objects", source=source,
+                                 field=f"observer_runs.{scen}")
+
+
+def scenario_folder(root: Path, name: str, *, source: str | None = None) -> Path:
+    """The folder of scenario ``name`` in the run folder ``root`` (resolved), refusing any name
+    that is not one plain folder name or that resolves (through a symlink) outside ``root``."""
+    if (not name or name in (".", "..") or "/" in name or "\\" in name or "\x00" in name
+            or Path(name).is_absolute()):
+        raise RunFolderError(f"scenario name {name[:80]!r} is not a folder name of this run", source=source or str(root))
+    return inside_folder(root, root / name, source=source)
 
 
 @dataclass(frozen=True)
 class ScenarioFiles:
-    """The saved outputs of one scenario of a run (each read lazily, once)."""
+    """The saved outputs of one scenario of a run (each read lazily, once).
+
+    ``root`` is the resolved run folder: every file is read only if it resolves inside it.
+    """
 
     name: str
     folder: Path
+    root: Path | None = None
 
-    def _csv(self, filename: str) -> pd.DataFrame:
+    def _path(self, filename: str) -> Path | None:
         path = self.folder / filename
         if not path.is_file():
+            return None
+        if self.root is not None:
+            inside_folder(self.root, path)
+        return path
+
+    def _csv(self, filename: str, required: tuple[str, ...], text: tuple[str, ...] = ()) -> pd.DataFrame:
+        """A CSV of the scenario; every column but ``text`` must hold numbers (empty = NaN)."""
+        path = self._path(filename)
+        if path is None:
             return pd.DataFrame()
-        return pd.read_csv(path)
+        try:
+            frame = pd.read_csv(path)
+        except pd.errors.EmptyDataError:
+            raise RunFolderError("empty file (no header)", source=str(path)) from None
+        except (ValueError, pd.errors.ParserError, UnicodeDecodeError, OSError) as e:
+            first = str(e).splitlines()[0] if str(e) else type(e).__name__
+            raise RunFolderError(f"unreadable CSV ({first})", source=str(path)) from None
+        for col in required:
+            if col not in frame.columns:
+                has = ", ".join(map(str, frame.columns[:12]))
+                raise RunFolderError(f"missing column (has: {has})", source=str(path), field=col)
+        for col in frame.columns:
+            if col in text or frame[col].dtype.kind in "biuf":
+                continue
+            values = pd.to_numeric(frame[col], errors="coerce")
+            bad = values.isna() & frame[col].notna()
+            if bad.any():
+                i = int(np.argmax(bad.to_numpy()))
+                raise RunFolderError(f"not a number on line {i + 2} (got {short_repr(frame[col].iloc[i])})",
+                                     source=str(path), field=str(col))
+            frame[col] = values
+        return frame
 
     def _json(self, filename: str, default: Any) -> Any:
-        path = self.folder / filename
-        if not path.is_file():
+        path = self._path(filename)
+        if path is None:
             return default
-        try:
-            return json.loads(path.read_text())
-        except json.JSONDecodeError as e:
-            raise RunFolderError(f"invalid JSON ({e.msg})", source=str(path)) from None
+        kind, what = (list, "list") if isinstance(default, list) else (dict, "object")
+        return _read_json(path, kind, what)
 
     @cached_property
     def truth(self) -> pd.DataFrame:
-        return self._csv("truth.csv")
+        return self._csv("truth.csv", required=("t_s",))
 
     @cached_property
     def estimates(self) -> pd.DataFrame:
-        return self._csv("estimates.csv")
+        return self._csv("estimates.csv", required=("t_s", "observer", "state", "value"),
+                         text=("observer", "state"))
 
     @cached_property
     def events(self) -> list[dict[str, Any]]:
@@ -102,7 +234,11 @@ def _finite(x: Any) -> bool:
 
 @dataclass(frozen=True)
 class RunData:
-    """A whole run folder: metrics, run description and per-scenario files."""
+    """A whole run folder: metrics, run description and per-scenario files.
+
+    ``load`` refuses (``RunFolderError``, exit 2) a folder that is not a run, a malformed
+    ``run.json`` or ``metrics.csv``, and any scenario name or file path that leads outside the folder.
+    """
 
     folder: Path
     metrics: pd.DataFrame
@@ -111,7 +247,15 @@ class RunData:
     @classmethod
     def load(cls, run_dir: Path) -> RunData:
         run_dir = Path(run_dir)
-        return cls(folder=run_dir, metrics=read_metrics(run_dir), run=read_run_json(run_dir))
+        metrics = read_metrics(run_dir)
+        if not (run_dir / "run.json").is_file():
+            raise RunFolderError("missing run.json (not a roadtruth run folder?)", source=str(run_dir))
+        run = read_run_json(run_dir)
+        root = run_dir.resolve()
+        check_run_json(run, root, str(run_dir / "run.json"))
+        for name in metrics["scenario"].astype(str).unique():
+            scenario_folder(root, name, source=str(run_dir / "metrics.csv"))
+        return cls(folder=run_dir, metrics=metrics, run=run)
 
     @cached_property
     def scenario_names(self) -> list[str]:
@@ -152,7 +296,9 @@ class RunData:
         return "ok" if any(s.startswith("ok") for s in rows) else rows[0]
 
     def scenario(self, name: str) -> ScenarioFiles:
-        return ScenarioFiles(name=name, folder=self.folder / name)
+        root = self.folder.resolve()
+        scenario_folder(root, name)
+        return ScenarioFiles(name=name, folder=self.folder / name, root=root)
 
     def scenario_entry(self, name: str) -> dict[str, Any]:
         """The scenario's entry in run.json (status, seeds, render results), or {}."""
@@ -166,6 +312,35 @@ class RunData:
 
 #: Every float in a run's CSV files is written with this format, so the same seed gives the same bytes.
 FLOAT_FORMAT = "%.10g"
+
+
+def scenario_folder_name(name: str) -> str:
+    """A scenario's folder name in a run: ``[A-Za-z0-9_.-]`` only (anything else becomes ``_``), no
+    leading dot, at most ``MAX_FOLDER_NAME`` characters; never empty."""
+    safe = re.sub(r"[^A-Za-z0-9_.-]+", "_", name).lstrip(".")[:MAX_FOLDER_NAME]
+    return safe or "scenario"
+
+
+def new_scenario_folder(run_dir: Path, name: str) -> tuple[str, Path]:
+    """Create a scenario's own folder in ``run_dir``; returns (folder name, path).
+
+    The name is ``scenario_folder_name(name)``, with ``-2``, ``-3`` … appended when a folder of that
+    name exists already (two scenario files of one name) or is reserved (``frames``, ``videos``). The
+    folder is created exclusively, so two scenarios never share one, and always inside ``run_dir``.
+    """
+    base = scenario_folder_name(name)
+    root = Path(run_dir).resolve()
+    for k in range(1, 10_000):
+        label = base if k == 1 else f"{base[:MAX_FOLDER_NAME - 6]}-{k}"
+        if label in RESERVED_FOLDERS:
+            continue
+        folder = scenario_folder(root, label)
+        try:
+            folder.mkdir()
+        except FileExistsError:
+            continue
+        return label, Path(run_dir) / label
+    raise RunFolderError(f"no free folder name for scenario {base!r}", source=str(run_dir))
 
 
 def write_csv(frame: pd.DataFrame, path: Path) -> None:
@@ -242,17 +417,39 @@ def versions() -> dict[str, str | None]:
 
 
 def git_revision() -> str | None:
-    """The source tree's git revision (``+dirty`` with local changes), or None outside a checkout."""
-    import subprocess
+    """roadtruth's own git revision (``+dirty`` with local changes), or None when not run from a checkout.
 
-    root = Path(__file__).resolve().parents[2]
-    try:
-        rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True,
-                             timeout=5, check=False)
-        if rev.returncode != 0:
+    Asked of the folder holding the installed package, and only trusted when that folder lies in a git
+    work tree whose top has a ``pyproject.toml`` naming roadtruth: an installed copy inside the user's
+    own repository (a virtual environment in their project) must not report their revision, and
+    neither the working folder nor ``GIT_DIR``-style variables of the caller are consulted.
+    """
+    import os
+    import subprocess
+    import tomllib
+
+    package_dir = Path(__file__).resolve().parents[1]
+    env = {k: v for k, v in os.environ.items() if not k.startswith("GIT_")}
+
+    def git(*args: str) -> str | None:
+        try:
+            r = subprocess.run(["git", "-C", str(package_dir), *args], capture_output=True, text=True,
+                               timeout=5, check=False, env=env, stdin=subprocess.DEVNULL)
+        except (OSError, subprocess.SubprocessError):
             return None
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
-                               capture_output=True, text=True, timeout=5, check=False)
-    except (OSError, subprocess.SubprocessError):
+        return r.stdout.strip() if r.returncode == 0 else None
+
+    top = git("rev-parse", "--show-toplevel")
+    if not top:
         return None
-    return rev.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
+    try:
+        project = tomllib.loads((Path(top) / "pyproject.toml").read_text(encoding="utf-8")).get("project", {})
+    except (OSError, ValueError):
+        return None
+    if not isinstance(project, dict) or project.get("name") != "roadtruth":
+        return None
+    rev = git("rev-parse", "HEAD")
+    if not rev:
+        return None
+    dirty = git("status", "--porcelain", "--untracked-files=no")
+    return rev + ("+dirty" if dirty else "")
