@@ -350,15 +350,16 @@ def run_check(*, thresholds: Path | None, baseline: Path | None, junit: Path | N
         raised before anything is simulated or written.
     """
     from harness.check_junit import junit_xml
-    from harness.errors import InputError
+    from harness.outdir import check_output_dir, check_writable, claim
     from harness.pipeline import run_suite
     from harness.report.rundata import read_metrics, read_run_json, write_csv
 
     spec = load_thresholds(Path(thresholds) if thresholds is not None else DEFAULT_THRESHOLDS)
     base = load_baseline(Path(baseline), spec.regression.metrics) if baseline is not None else None
-    if junit is not None and Path(junit).is_dir():
-        raise InputError("is a folder, expected a file path for the JUnit XML report", source=str(junit),
-                         field="--junit")
+    # Every output location is checked before anything is simulated (the run itself re-checks --out).
+    check_output_dir(out, inputs=[thresholds, baseline, *(scenarios or [])])
+    if junit is not None:
+        check_writable(junit, what="--junit", folder=False)
     run_dir = run_suite(scenarios=scenarios, suite_name=suite_name, observers=observers, seed=seed, jobs=jobs,
                         out=Path(out), render=False, progress=None)
     metrics = read_metrics(run_dir)
@@ -381,4 +382,6 @@ def run_check(*, thresholds: Path | None, baseline: Path | None, junit: Path | N
                                             properties={"thresholds": str(spec.source),
                                                         "baseline": str(baseline or ""),
                                                         "run_folder": str(run_dir)}))
+        if Path(junit).resolve().parent == run_dir:
+            claim(run_dir, [Path(junit).name])  # ours: a later check may replace the folder with it
     return result

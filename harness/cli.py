@@ -1,17 +1,21 @@
 """The ``roadtruth`` command line: parsing only; every command calls one library function.
 
 Exit codes: 0 success, 1 a check failed, 2 bad input (one line on stderr naming the file, field or
-value at fault; nothing written). Heavy packages (mujoco, numba, cvxpy) are imported inside the
+value at fault; nothing written), 130 Ctrl-C, 143 SIGTERM (129 SIGHUP); interrupted runs keep nothing
+half-written. Heavy packages (mujoco, numba, cvxpy) are imported inside the
 command functions so that ``--help`` stays instant.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import NoReturn
 
@@ -99,7 +103,7 @@ def _cmd_run(a: argparse.Namespace) -> int:
 def _cmd_simulate(a: argparse.Namespace) -> int:
     from harness.pipeline import simulate_to_dir
 
-    out = simulate_to_dir(a.scenario, Path(a.out or f"reports/simulate-{a.scenario}"), vehicle=a.vehicle,
+    out = simulate_to_dir(a.scenario, Path(a.out or f"reports/simulate-{Path(a.scenario).stem}"), vehicle=a.vehicle,
                           friction=a.friction, seed=a.seed, log_rate_hz=a.log_rate, sensors=a.sensors,
                           faults=a.faults)
     print(f"wrote {out}")
@@ -294,11 +298,55 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP arrived: unwound exactly like Ctrl-C (temp folders removed), exit 128 + signal."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def _termination_as_interrupt() -> Iterator[None]:
+    """While the command runs, SIGTERM/SIGHUP raise :class:`Terminated` in this (the main) process.
+
+    Forked worker processes inherit the handler; in them it restores the default action and re-sends
+    the signal, so a worker still dies of it as before. A second signal during the clean-up is ignored
+    so that the clean-up itself is not cut short (SIGKILL still ends everything).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signal handlers can only be installed from the main thread (e.g. main() called in a thread)
+        return
+    owner = os.getpid()
+    raised = False
+
+    def handler(signum: int, _frame: object) -> None:
+        nonlocal raised
+        if os.getpid() != owner:
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
+        if not raised:
+            raised = True
+            raise Terminated(signum)
+
+    previous = {s: signal.signal(s, handler) for s in _TERMINATING}
+    try:
+        yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
+_TERMINATING = tuple(s for s in (getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None)) if s)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args))
+        with _termination_as_interrupt():
+            return int(args.func(args))
     except InputError as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"roadtruth: error: {msg}", file=sys.stderr)
@@ -306,6 +354,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CheckFailed as exc:
         print(f"roadtruth: check failed: {exc}", file=sys.stderr)
         return EXIT_CHECK_FAILED
+    except Terminated as exc:
+        print(f"roadtruth: stopped by {exc} (nothing half-written was kept)", file=sys.stderr)
+        return 128 + exc.signum
     except KeyboardInterrupt:
         print("roadtruth: interrupted (nothing half-written was kept)", file=sys.stderr)
         return 130

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import html
 import math
-import os
 from pathlib import Path
 
 import numpy as np
@@ -95,8 +94,7 @@ def compare_runs(dir_a: Path, dir_b: Path, out: Path | None = None) -> pd.DataFr
     table.loc[~ok_a & ok_b, "verdict"] = "better"
     table = table.sort_values(KEYS, kind="stable").reset_index(drop=True)
     if out is not None:
-        with atomic_output_dir(out) as tmp:
-            os.chmod(tmp, 0o755)
+        with atomic_output_dir(out, command="compare", inputs=[dir_a, dir_b]) as tmp:
             write_csv(table, tmp / "compare.csv")
             (tmp / "compare.html").write_text(_html(table, Path(dir_a), Path(dir_b)), encoding="utf-8")
     return table

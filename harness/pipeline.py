@@ -455,8 +455,8 @@ def run_suite(
     bar = Progress(len(names) * (2 if render else 1), progress, desc="roadtruth run")
     out = Path(out)
     try:
-        with atomic_output_dir(out) as tmp:
-            os.chmod(tmp, 0o755)  # mkdtemp makes it private; a report folder is meant to be shared
+        with atomic_output_dir(out, command="run",
+                               inputs=[*(scenarios or []), vehicle, friction, sensors]) as tmp:
             tasks = [ScenarioTask(name=n, run_dir=tmp, observers=tuple(chosen), seed=seed, vehicle=vehicle,
                                   friction=friction, sensors=sensors, faults=faults, log_rate_hz=log_rate_hz,
                                   render=render) for n in names]
@@ -516,8 +516,7 @@ def simulate_to_dir(
     cfg = sensor_config(sc, sensors, faults)
     ss, sim_seed, sensor_seed = scenario_seeds(sc.seed, sc.name, seed)
     timings: dict[str, float] = {}
-    with atomic_output_dir(out) as tmp:
-        os.chmod(tmp, 0o755)
+    with atomic_output_dir(out, command="simulate", inputs=[scenario, vehicle, friction, sensors]) as tmp:
         t = time.perf_counter()
         truth = simulate(sc, seed=sim_seed)
         timings["simulate"] = time.perf_counter() - t

@@ -39,7 +39,7 @@ import numpy as np
 import pandas as pd
 
 from harness.errors import LogError
-from harness.outdir import atomic_output_dir
+from harness.outdir import atomic_output_dir, check_output_dir
 from harness.replay_log import ColumnMap, apply_map, identity_map, load_column_map, read_log
 from harness.replay_segments import RUN, Segment, segment_log, segment_measurements, segments_frame
 from harness.report.rundata import git_revision, versions, write_csv, write_json
@@ -209,6 +209,7 @@ def replay(
 
     say = progress or (lambda _msg: None)
     t_wall = time.perf_counter()
+    check_output_dir(out, inputs=[log, columns, vehicle])  # before any work: refusals and writability
     veh: VehicleParams = load_vehicle(vehicle)
     rl = prepare_log(Path(log), columns)
     say(f"{rl.name}: {len(rl.frame)} rows, {len(rl.run_segments)} run segment(s), "
@@ -251,7 +252,7 @@ def replay(
                     runs=runs_all, mass_kg=veh.mass_kg)
 
     out = Path(out)
-    with atomic_output_dir(out) as tmp:
+    with atomic_output_dir(out, command="replay", inputs=[log, columns, vehicle]) as tmp:
         sub = tmp / rl.name
         sub.mkdir()
         write_csv(truth, sub / "truth.csv")

@@ -395,8 +395,7 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
         bar.note(f"{len(results)} of {len(cases)} cases loaded from the case cache (--fresh recomputes them)")
     out = Path(out)
     try:
-        with atomic_output_dir(out) as tmp:
-            os.chmod(tmp, 0o755)
+        with atomic_output_dir(out, command="stress", inputs=[*(scenarios or []), *fr_list]) as tmp:
             t_run = time.perf_counter()
             stream = (_run_dask(todo, dask, jobs, dask_info) if dask else _run_local(todo, jobs)) if todo else ()
             for r in stream:
