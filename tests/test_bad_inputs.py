@@ -151,6 +151,15 @@ def test_column_map_scale_in_exponent_form(tmp_path: Path) -> None:
     assert load_column_map(cmap).channels["t_s"].scale == pytest.approx(1e-3)
 
 
+def test_thresholds_in_exponent_form(tmp_path: Path) -> None:
+    from harness.check_rules import load_thresholds
+
+    gate = tmp_path / "gate.yaml"
+    gate.write_text("rules:\n  - {metric: rmse, max: 1e-6}\n  - {metric: coverage, min: 9.5e-1}\n")
+    rules = load_thresholds(gate).rules
+    assert rules[0].max == pytest.approx(1e-6) and rules[1].min == pytest.approx(0.95)
+
+
 def test_duplicate_key_is_refused(tmp_path: Path) -> None:
     f = tmp_path / "d.yaml"
     f.write_text("a: 1\nb: 2\na: 3\n")
@@ -184,6 +193,7 @@ def test_run_with_absolute_and_parent_relative_scenario_paths(tmp_path: Path, mo
     assert sorted(metrics["scenario"].unique()) == folders
     run = json.loads((out / "run.json").read_text())
     assert [s["name"] for s in run["scenarios"]] == folders
+    assert sorted(run["observer_runs"]) == folders  # statuses keyed like the folders the report reads
     assert main(["report", "out"]) == 0
 
 
