@@ -163,3 +163,19 @@ def test_an_instance_with_another_beta_max_declares_it():
 
     obs = create("ekf_bicycle", load_vehicle("sedan"), beta_max_rad=0.3)
     assert obs.state_bounds == {"beta_rad": (-0.3, 0.3)}
+
+
+def test_every_declared_bound_names_an_estimated_state_inside_the_absurd_limits():
+    """A bound on a state the observer does not estimate would never be checked; one wider than the
+    absurd limit of ``harness.estimate`` would leave a band where neither check sees a runaway."""
+    from harness.estimate import ABSURD_LIMITS
+    from observers.registry import available_observers, observer_class
+
+    declared = {n: observer_class(n).state_bounds for n in available_observers() if observer_class(n).state_bounds}
+    assert {"ekf_bicycle", "ukf_bicycle"} <= set(declared)
+    for name, bounds in declared.items():
+        for state, (lo, hi) in bounds.items():
+            assert state in observer_class(name).states, (name, state)
+            assert lo < hi, (name, state)
+            if state in ABSURD_LIMITS:
+                assert max(abs(lo), abs(hi)) <= ABSURD_LIMITS[state], (name, state)
