@@ -180,6 +180,7 @@ def run_case(case: StressCase) -> CaseResult:
     )
     from harness.scoring import score
 
+    from harness.truth_events import scored_until_of, status_of
     t0 = time.perf_counter()
     friction = None if case.friction == SCENARIO_FRICTION else case.friction
     faults = None if case.faults == NO_FAULTS else case.faults
@@ -210,9 +211,10 @@ def run_case(case: StressCase) -> CaseResult:
         if truth.ok:
             truth = FailedTruth(status=status)
         runs = {o: SkippedRun(status=status) for o in case.observers}
-    metrics = score(truth.frame, estimates, scenario=case.scenario, runs=runs, mass_kg=mass)
+    metrics = score(truth.frame, estimates, scenario=case.scenario, runs=runs, mass_kg=mass,
+                    scored_until_s=scored_until_of(truth))
     head = {"case": case.index, "friction": case.friction, "mu": mu, "faults": case.faults,
-            "seed_index": case.seed_index, "seed": case.seed, "truth_status": str(truth.status),
+            "seed_index": case.seed_index, "seed": case.seed, "truth_status": status_of(truth),
             "peak_abs_ay_mps2": _peak(truth.frame, "ay_mps2"), "peak_abs_beta_rad": _peak(truth.frame, "beta_rad")}
     for i, (k, v) in enumerate(head.items()):
         metrics.insert(i, k, [v] * len(metrics))
