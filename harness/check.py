@@ -45,7 +45,7 @@ from harness.check_rules import (
 )
 
 __all__ = ["CheckOutcome", "CheckResult", "RegressionSpec", "Rule", "Thresholds", "evaluate", "known_universe",
-           "load_baseline", "load_thresholds", "run_check", "simulation_outcomes"]
+           "load_baseline", "load_thresholds", "reason_of", "run_check", "simulation_outcomes"]
 
 #: Most failure lines ``CheckResult.summary`` prints before "… and N more".
 SUMMARY_ROWS = 40
@@ -133,9 +133,12 @@ def _threshold_outcomes(metrics: pd.DataFrame, rule: Rule, known: pd.DataFrame |
     has_col = rule.metric in metrics.columns
     for d in rows.to_dict("records"):
         if str(d.get("status", "")).startswith(NOT_APPLICABLE):
-            # The scenario lacks a sensor the observer needs (e.g. no radar target): nothing to judge.
+            # The scenario lacks a sensor the observer needs (e.g. no radar target): nothing to judge,
+            # and the reason is kept so that JUnit and the page say why it was skipped.
             out.append(CheckOutcome("threshold", str(d["scenario"]), str(d["observer"]), str(d["state"]),
-                                    rule.metric, rule.label, d.get("status"), "skip", "", rule.where))
+                                    rule.metric, rule.label, d.get("status"), "skip",
+                                    f"{d['scenario']} {d['observer']} {d['state'] or '-'}: not applicable "
+                                    f"({d.get('status')}) ({rule.where})", rule.where))
             continue
         value = d.get(rule.metric) if has_col else None
         verdict, reason = _judge(rule, value)
@@ -167,6 +170,12 @@ def _regression_outcomes(metrics: pd.DataFrame, baseline: pd.DataFrame, spec: Re
                                     f"{head}: in the baseline but missing from this run", "regression"))
             continue
         now = cur.loc[key]
+        if str(now["status"]).startswith(NOT_APPLICABLE) and not str(d["status"]).startswith("ok"):
+            # Not applicable in this run nor in the baseline: a skip with its reason (an observer
+            # that was ok in the baseline and is skipped now still fails the status check below).
+            out.append(CheckOutcome("regression", *key, "status", "no worse than baseline", now["status"], "skip",
+                                    f"{head}: not applicable ({now['status']})", "regression"))
+            continue
         was_ok, is_ok = str(d["status"]).startswith("ok"), str(now["status"]).startswith("ok")
         if was_ok:
             verdict = "pass" if is_ok else "fail"
@@ -283,23 +292,47 @@ class CheckResult:
         return cls(passed=not failed, n_checks=len(outcomes) - skipped, n_failed=len(failed), n_skipped=skipped,
                    out=Path(out), failures=tuple(o.message for o in failed), outcomes=tuple(outcomes))
 
+    @property
+    def n_rules(self) -> int:
+        """How many sources of checks were applied (each thresholds rule, the regression, the simulation)."""
+        return len({o.source for o in self.outcomes})
+
+    @property
+    def failed_rules(self) -> list[str]:
+        """Sources with at least one failed check, in order of appearance."""
+        return list(dict.fromkeys(o.source for o in self.outcomes if o.verdict == "fail"))
+
+    def verdict_line(self) -> str:
+        """``check passed: …`` / ``check FAILED: …`` with the counts of checks and rules."""
+        verdict = "passed" if self.passed else "FAILED"
+        n_bad = len(self.failed_rules)
+        return (f"check {verdict}: {self.n_failed} of {self.n_checks} checks failed ({n_bad} of {self.n_rules} rules "
+                f"broken), {self.n_skipped} skipped")
+
     def summary(self) -> str:
-        """A compact table of the failures (at most ``SUMMARY_ROWS``) and one line of totals."""
+        """A compact table of the failures (at most ``SUMMARY_ROWS``, with the reason of each) and the verdict."""
         failed = [o for o in self.outcomes if o.verdict == "fail"]
         lines: list[str] = []
         if failed:
-            head = ("kind", "scenario", "observer", "state", "check", "value")
-            rows = [(o.kind, o.scenario or "-", o.observer or "-", o.state or "-", o.check, _fmt(o.value))
-                    for o in failed[:SUMMARY_ROWS]]
+            head = ("kind", "scenario", "observer", "state", "check", "value", "reason")
+            rows = [(o.kind, o.scenario or "-", o.observer or "-", o.state or "-", o.check, _fmt(o.value),
+                     reason_of(o)) for o in failed[:SUMMARY_ROWS]]
             widths = [max(len(r[i]) for r in [head, *rows]) for i in range(len(head))]
             lines.append("  ".join(h.ljust(w) for h, w in zip(head, widths, strict=True)).rstrip())
             lines.extend("  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip() for r in rows)
             if len(failed) > SUMMARY_ROWS:
                 lines.append(f"… and {len(failed) - SUMMARY_ROWS} more (see {self.out / 'check.csv'})")
-        verdict = "passed" if self.passed else "FAILED"
-        lines.append(f"check {verdict}: {self.n_failed} of {self.n_checks} checks failed, {self.n_skipped} skipped "
-                     f"({self.out / 'check.csv'})")
+        lines.append(f"{self.verdict_line()} (see {self.out / 'check.html'})")
         return "\n".join(lines)
+
+
+def reason_of(o: CheckOutcome) -> str:
+    """Why a check failed or was skipped, without the scenario/observer/state the row already names."""
+    msg = o.message
+    for head in (f"{o.scenario} {o.observer} {o.state or '-'}: ", f"{o.source}: ", f"{o.scenario}: "):
+        if head.strip(": -") and msg.startswith(head):
+            return msg[len(head):]
+    return msg
 
 
 # ---- files ------------------------------------------------------------------------------------------
@@ -325,9 +358,19 @@ def outcomes_frame(outcomes: list[CheckOutcome] | tuple[CheckOutcome, ...]) -> p
                         columns=cols)
 
 
+def _scenario_seconds(run_dir: Path) -> dict[str, float]:
+    """Seconds per scenario for JUnit, from the run's ``timings.json`` (empty when it is unreadable)."""
+    try:
+        data = json.loads((run_dir / "timings.json").read_text(encoding="utf-8"))
+        return {str(name): float(sum(t.values())) for name, t in data["scenarios_s"].items()}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return {}
+
+
 def run_check(*, thresholds: Path | None, baseline: Path | None, junit: Path | None, suite_name: str = "ci",
               scenarios: list[str] | None = None, observers: list[str] | None = None, seed: int | None = None,
-              jobs: int = 1, out: Path = Path("reports/check")) -> CheckResult:
+              jobs: int = 1, out: Path = Path("reports/check"),
+              observer_timeout_s: float | None = None) -> CheckResult:
     """Run a suite (no rendering) into ``out`` and judge it; ``roadtruth check``.
 
     Parameters
@@ -335,7 +378,7 @@ def run_check(*, thresholds: Path | None, baseline: Path | None, junit: Path | N
     thresholds : thresholds YAML (None = the shipped ``harness/thresholds/ci.yaml``).
     baseline : a previous ``metrics.csv`` (or a run folder holding one); None = no regression checks.
     junit : where to write a JUnit XML report (None = none).
-    suite_name, scenarios, observers, seed, jobs : as ``roadtruth run``.
+    suite_name, scenarios, observers, seed, jobs, observer_timeout_s : as ``roadtruth run``.
     out : the run folder (``run_suite`` output plus ``check.csv``, every outcome).
 
     Returns
@@ -350,9 +393,11 @@ def run_check(*, thresholds: Path | None, baseline: Path | None, junit: Path | N
         raised before anything is simulated or written.
     """
     from harness.check_junit import junit_xml
+    from harness.check_page import check_page
+    from harness.metrics_file import read_metrics_file
     from harness.outdir import check_output_dir, check_writable, claim
     from harness.pipeline import run_suite
-    from harness.report.rundata import read_metrics, read_run_json, write_csv
+    from harness.report.rundata import read_run_json, write_csv
 
     spec = load_thresholds(Path(thresholds) if thresholds is not None else DEFAULT_THRESHOLDS)
     base = load_baseline(Path(baseline), spec.regression.metrics) if baseline is not None else None
@@ -361,8 +406,8 @@ def run_check(*, thresholds: Path | None, baseline: Path | None, junit: Path | N
     if junit is not None:
         check_writable(junit, what="--junit", folder=False)
     run_dir = run_suite(scenarios=scenarios, suite_name=suite_name, observers=observers, seed=seed, jobs=jobs,
-                        out=Path(out), render=False, progress=None)
-    metrics = read_metrics(run_dir)
+                        out=Path(out), render=False, progress=None, observer_timeout_s=observer_timeout_s)
+    metrics = read_metrics_file(run_dir / "metrics.csv")  # the validation a baseline gets, too
     run_json = read_run_json(run_dir)
     outcomes = simulation_outcomes(run_json.get("scenarios", []))
     outcomes += evaluate(metrics, spec, base, spec.regression, known=known_universe())
@@ -374,10 +419,13 @@ def run_check(*, thresholds: Path | None, baseline: Path | None, junit: Path | N
     write_atomic(run_dir / "check.json", json.dumps({
         "thresholds": str(spec.source), "baseline": str(baseline) if baseline is not None else None,
         "passed": result.passed, "n_checks": result.n_checks, "n_failed": result.n_failed,
-        "n_skipped": result.n_skipped}, indent=2) + "\n")
+        "n_skipped": result.n_skipped, "n_rules": result.n_rules, "failed_rules": result.failed_rules},
+        indent=2) + "\n")
+    write_atomic(run_dir / "check.html", check_page(
+        result, thresholds=spec.source, baseline=Path(baseline) if baseline is not None else None,
+        run_report="index.html" if (run_dir / "index.html").is_file() else None))
     if junit is not None:
-        times = {str(e.get("name")): float(sum((e.get("timings_s") or {}).values()))
-                 for e in run_json.get("scenarios", [])}
+        times = _scenario_seconds(run_dir)
         write_atomic(Path(junit), junit_xml(outcomes, times=times,
                                             properties={"thresholds": str(spec.source),
                                                         "baseline": str(baseline or ""),

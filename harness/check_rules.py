@@ -230,43 +230,10 @@ def load_baseline(path: Path, metrics: tuple[str, ...]) -> pd.DataFrame:
 
     Raises ``BaselineError`` naming the file and the column, row or value at fault.
     """
-    p = Path(path)
-    if p.is_dir():
-        p = p / "metrics.csv"
-    if not p.is_file():
-        raise BaselineError("file not found (expected a metrics.csv or a run folder)", source=str(p))
-    try:
-        frame = pd.read_csv(p, dtype={"scenario": str, "observer": str, "state": str, "status": str})
-    except (ValueError, pd.errors.ParserError, UnicodeDecodeError) as e:
-        raise BaselineError(f"unreadable CSV ({str(e).splitlines()[0] if str(e) else type(e).__name__})",
-                            source=str(p)) from None
-    for col in [*KEYS, "status", *metrics]:
-        if col not in frame.columns:
-            raise BaselineError(f"missing column (has: {', '.join(map(str, frame.columns))})", source=str(p),
-                                field=col)
-    if frame.empty:
-        raise BaselineError("no rows", source=str(p))
-    frame["state"] = frame["state"].fillna("")
-    for col in ("scenario", "observer", "status"):
-        bad = frame[col].isna()
-        if bad.any():
-            raise BaselineError(f"empty cell on line {int(bad.to_numpy().argmax()) + 2}", source=str(p), field=col)
-    for m in metrics:
-        num = pd.to_numeric(frame[m], errors="coerce")
-        bad = num.isna() & frame[m].notna()
-        if bad.any():
-            i = int(bad.to_numpy().argmax())
-            raise BaselineError(f"not a number on line {i + 2} (got {frame[m].iloc[i]!r})", source=str(p), field=m)
-        finite = num.dropna()
-        if (~finite.map(math.isfinite)).any():
-            raise BaselineError("infinite value", source=str(p), field=m)
-        frame[m] = num
-    dup = frame.duplicated(KEYS)
-    if dup.any():
-        i = int(dup.to_numpy().argmax())
-        key = "/".join(str(frame[k].iloc[i]) for k in KEYS)
-        raise BaselineError(f"duplicate row {key} on line {i + 2}", source=str(p), field="scenario")
-    return frame
+    from harness.metrics_file import read_metrics_file
+
+    # The same validation as ``compare`` (harness.metrics_file), raised as BaselineError.
+    return read_metrics_file(Path(path), required=tuple(metrics), finite=tuple(metrics), error=BaselineError)
 
 
 # ---- proposing thresholds from measured runs ------------------------------------------------------

@@ -163,11 +163,12 @@ def _cmd_report(a: argparse.Namespace) -> int:
 
 
 def _cmd_compare(a: argparse.Namespace) -> int:
-    from harness.compare import compare_runs
+    from harness.compare import compare
 
-    table = compare_runs(Path(a.dir_a), Path(a.dir_b), Path(a.out) if a.out else None)
-    with_delta = table.dropna(subset=["rmse_delta"]) if "rmse_delta" in table else table
-    print(with_delta.to_string(index=False, max_rows=60))
+    result = compare(Path(a.dir_a), Path(a.dir_b), Path(a.out) if a.out else None)
+    print(result.terminal())
+    if a.out:
+        print(f"full table: {Path(a.out) / 'compare.csv'}; page: {Path(a.out) / 'compare.html'}")
     return EXIT_OK
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -153,7 +154,6 @@ def test_regression_status_nan_and_missing_rows():
     ("rules:\n  - {metric: rmse}\n", "rules[0].max"),
     ("rules:\n  - {metric: rmse, min: 2, max: 1}\n", "rules[0].min"),
     ("rules:\n  - {metric: rmse, state: beta, max: 1}\n", "rules[0].state"),
-    ("rules:\n  - {metric: rmse, max: 1e-6}\n", "rules[0].max"),
     ("rules: []\nregression: {metric: status}\n", "regression.metric"),
     ("rules: []\nregression: {rel_tol: -0.1}\n", "regression.rel_tol"),
     ("rules: []\nregression: {abs_tol: {beta: 0.1}}\n", "regression.abs_tol.beta"),
@@ -221,9 +221,11 @@ def test_summary_lists_failures_and_total(tmp_path: Path):
     result = CheckResult.from_outcomes(evaluate(m, [Rule(metric="rmse", max=0.3)]), tmp_path)
     assert not result.passed and result.n_failed == 1 and result.n_checks == len(m)
     lines = result.summary().splitlines()
-    assert lines[0].split() == ["kind", "scenario", "observer", "state", "check", "value"]
-    assert lines[1].split()[:4] == ["threshold", "s1", "obs_a", "beta_rad"] and lines[1].endswith("0.5")
-    assert lines[-1].startswith(f"check FAILED: 1 of {len(m)} checks failed")
+    assert lines[0].split() == ["kind", "scenario", "observer", "state", "check", "value", "reason"]
+    assert lines[1].split()[:4] == ["threshold", "s1", "obs_a", "beta_rad"]
+    # The reason column says why, without repeating the scenario/observer/state of the row.
+    assert lines[1].split("  ")[-1] == "rmse = 0.5 > max 0.3 (rules[?])" and " 0.5 " in lines[1]
+    assert lines[-1].startswith(f"check FAILED: 1 of {len(m)} checks failed (1 of 1 rules broken), 0 skipped")
 
 
 def test_proposed_rules_pass_their_runs_and_catch_doubled_error(tmp_path: Path):
@@ -289,6 +291,17 @@ def test_cli_check_passes_then_fails_with_strict_thresholds(tmp_path: Path):
                 for c in root.iter("testcase") if c.find("failure") is not None}
     assert "rmse" in failures[("step_steer.kf_bicycle", "beta_rad: rmse <= 1e-06")]
     assert "kf_bicycel" in failures[("thresholds", "rules[1]: status == ok")]
+    # stdout: one row per failure with its reason, then the verdict; check.html opens with the verdict.
+    out_lines = bad.stdout.splitlines()
+    assert out_lines[0].split()[-1] == "reason"
+    assert any(ln.startswith("rule ") and ln.endswith("matches no metrics row (scenario *, observer kf_bicycel, "
+                                                     "state *; a typo?)") for ln in out_lines)
+    assert out_lines[-1].startswith("check FAILED: 2 of") and "2 of 3 rules broken" in out_lines[-1]
+    page = (tmp_path / "bad" / "check.html").read_text()
+    main = page[page.index("<main>"):]
+    assert re.match(r"<main>\s*<div class='verdict fail' id='verdict'><div class='big'>FAIL</div>", main)
+    assert "2 of 3 rules broken" in main[:600] and "rmse = " in main[:2000]
+    assert "<div class='big'>PASS</div>" in (tmp_path / "ok" / "check.html").read_text()
     # Same seeds -> identical metrics: every regression check against the first run passes at rel_tol 0.
     regress = [c for c in root.iter("testcase") if "baseline" in c.get("name")]
     assert regress and all(c.find("failure") is None for c in regress)
@@ -312,3 +325,82 @@ def test_observer_not_applicable_to_a_scenario_is_skipped_not_failed():
     assert v[("s1", "obs_b", "beta_rad")] == "pass"
     m.loc[(m.scenario == "s1") & (m.observer == "obs_a"), "status"] = "diverged"
     assert "fail" in {o.verdict for o in evaluate(m, rules) if o.scenario == "s1" and o.observer == "obs_a"}
+
+
+def test_not_applicable_checks_are_junit_skipped_with_their_reason():
+    m = metrics_frame()
+    na = (m.scenario == "s2") & (m.observer == "obs_b")
+    m.loc[na, ["status", "rmse"]] = ["skipped: missing range_m", math.nan]
+    base = m.copy()
+    outcomes = evaluate(m, [Rule(metric="rmse", state=("beta_rad",), max=0.05, where="rules[0]")], base, RegressionSpec())
+    root = ET.fromstring(junit_xml(outcomes))
+    [case] = [c for c in root.iter("testcase") if c.get("classname") == "s2.obs_b" and "rules[0]" not in c.get("name")
+              and c.find("skipped") is not None and c.get("name").startswith("beta_rad: rmse")]
+    assert case.find("failure") is None
+    assert case.find("skipped").get("message") == ("s2 obs_b beta_rad: not applicable (skipped: missing range_m) "
+                                                   "(rules[0])")
+    # The regression against a baseline where it was not applicable either: skipped with the reason too.
+    reg = [c for c in root.iter("testcase") if c.get("classname") == "s2.obs_b" and "baseline" in c.get("name")]
+    assert reg and all(c.find("skipped") is not None and "not applicable" in c.find("skipped").get("message")
+                       for c in reg)
+    assert root.get("failures") == "0" and int(root.get("skipped")) == 2
+    # Every skipped element carries a message.
+    assert all(s.get("message") for s in root.iter("skipped"))
+
+
+def test_check_page_opens_with_the_verdict_and_the_failed_rules(tmp_path: Path):
+    from harness.check_page import check_page
+
+    m = metrics_frame()
+    m.loc[0, "rmse"] = 0.5
+    rules = [Rule(metric="rmse", max=0.3, where="rules[0]"), Rule(metric="status", equals="ok", where="rules[1]")]
+    result = CheckResult.from_outcomes(evaluate(m, rules), tmp_path)
+    html = check_page(result, thresholds=DEFAULT_THRESHOLDS, baseline=None, run_report="index.html")
+    main = html[html.index("<main>"):]
+    assert re.match(r"<main>\s*<div class='verdict fail' id='verdict'><div class='big'>FAIL</div>", main)
+    banner = main[:main.index("</div>", main.index("class='big'") + 40) + 6]
+    assert "1 of 12 checks failed; 1 of 2 rules broken" in banner
+    assert "rmse = 0.5 &gt; max 0.3 (rules[0])" in banner
+    assert "the shipped CI thresholds" in html and "href='index.html'" in html
+    ok = CheckResult.from_outcomes(evaluate(metrics_frame(), rules), tmp_path)
+    page_ok = check_page(ok, thresholds=tmp_path / "t.yaml", baseline=None, run_report=None)
+    assert "<div class='verdict pass' id='verdict'><div class='big'>PASS</div>" in page_ok
+    assert "0 of 12 checks failed; 0 of 2 rules broken" in page_ok
+
+
+# ---- malformed metrics files: the same validation as compare ---------------------------------------------
+
+def test_baseline_validation_covers_every_numeric_flag_and_key_column(tmp_path: Path):
+    good = metrics_frame()
+    cases = {
+        "cov.csv": (good.assign(coverage=["0.9", "abc", *["0.9"] * 4]), r"cov\.csv: coverage: not a number on line 3 "
+                                                                       r"\(got 'abc'\)"),
+        "flag.csv": (good.assign(certified=["maybe", *["true"] * 5]), r"flag\.csv: certified: not true/false on line 2"),
+        "obs.csv": (good.assign(observer=["obs_a", "", *["obs_b"] * 4]), r"obs\.csv: observer: empty cell on line 3"),
+        "dupstate.csv": (pd.concat([good, good.iloc[[2]]]), r"duplicate row s1/obs_b/beta_rad on lines 4, 8"),
+        "inf.csv": (good.assign(rmse=["inf", *["0.1"] * 5]), r"inf\.csv: rmse: infinite value on line 2"),
+    }
+    for name, (frame, _) in cases.items():
+        frame.to_csv(tmp_path / name, index=False)
+    (tmp_path / "empty.csv").write_text("scenario,observer,state,status,rmse,p95_abs\n")
+    for name, (_, pattern) in cases.items():
+        with pytest.raises(BaselineError, match=pattern):
+            load_baseline(tmp_path / name, ("rmse", "p95_abs"))
+    with pytest.raises(BaselineError, match=r"empty\.csv: no rows"):
+        load_baseline(tmp_path / "empty.csv", ("rmse",))
+    # A well-formed file comes back typed: numbers as floats, flags as booleans.
+    good.to_csv(tmp_path / "good.csv", index=False)
+    back = load_baseline(tmp_path / "good.csv", ("rmse", "p95_abs"))
+    assert back["rmse"].dtype == float and list(back["certified"]) == [False, False, True] * 2
+
+
+def test_cli_check_with_a_malformed_baseline_exits_2_with_one_line_before_any_work(tmp_path: Path):
+    frame = metrics_frame()
+    bad = pd.concat([frame, frame.iloc[:1]])
+    bad.to_csv(tmp_path / "base.csv", index=False)
+    res = _cli("--scenario", "step_steer", "--observer", "kf_bicycle", "--baseline", str(tmp_path / "base.csv"),
+               "--out", str(tmp_path / "never"))
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "base.csv" in lines[0] and "duplicate row s1/obs_a/beta_rad on lines 2, 8" in lines[0]
+    assert "Traceback" not in res.stderr and not (tmp_path / "never").exists()

@@ -5,6 +5,7 @@ statuses, and one-line input errors naming the bad value."""
 from __future__ import annotations
 
 import itertools
+import re
 from pathlib import Path
 
 import numpy as np
@@ -65,7 +66,9 @@ def test_cases_and_seeds_are_exactly_the_cartesian_product(serial: Path) -> None
     assert summary["n_cases"].eq(2).all()  # two seeds per (observer, state, friction, faults)
     assert len(summary) == rows.groupby(["observer", "state", "friction"]).ngroups
     html = (serial / "index.html").read_text()
-    assert "<svg" in html and "http://" not in html.replace("http://www.w3.org/2000/svg", "")
+    # Self-contained: charts as inline plotly specs, nothing fetched from the network.
+    assert "<div class='plot' data-spec='stress-0'>" in html and "Plotly" in html
+    assert not re.search(r"<(script|link|img)[^>]+(src|href)=[\"']?https?:", html)
 
 
 def test_seeds_derive_from_the_base_seed_and_extend() -> None:
@@ -158,3 +161,67 @@ def test_lists_parse_and_a_disabled_sensor_fault_is_refused_before_work(tmp_path
     with pytest.raises(SensorConfigError, match="ogs"):
         _sweep(tmp_path / "x", faults=["ogs:dropout=0.5"])
     assert not (tmp_path / "x").exists()
+
+
+# ---- the report: curves, breaking points, truth context (synthetic stress.csv, no simulation) ----------
+
+def test_breaking_point_at_the_known_mu_and_fault_level_with_the_threshold_used() -> None:
+    import math
+
+    from stress_synthetic import stress_rows
+
+    from harness.stress_report import DEFAULT_RMSE_LIMITS, breaking_points, summarize
+
+    summary = summarize(stress_rows())
+    bp = breaking_points(summary).set_index(["observer", "axis"])
+    frag_mu = bp.loc[("fragile", "μ")]
+    # 0.3° + 2°(1 − μ) crosses the default 1° limit between μ = 0.8 (0.7°) and 0.6 (1.1°).
+    assert frag_mu.verdict == "breaks" and frag_mu.breaks_at == 0.6
+    assert frag_mu.threshold == DEFAULT_RMSE_LIMITS["beta_rad"] == math.radians(1.0)
+    assert frag_mu.threshold_source == "default" and "1.1 deg > 1 deg" in frag_mu.reason
+    frag_fault = bp.loc[("fragile", "gnss:dropout")]
+    assert frag_fault.verdict == "breaks" and frag_fault.breaks_at == 0.3
+    # Spun-out seeds (60° "error") are the truth's fault: steady holds, and μ = 0.2 is not judged.
+    steady = bp.loc[("steady", "μ")]
+    assert steady.verdict == "holds" and math.isnan(steady.breaks_at)
+    assert "down to 0.4" in steady.reason and "not judged where every seed lost control: 0.2" in steady.reason
+    row = summary[(summary.observer == "steady") & (summary.friction == "0.4")].iloc[0]
+    assert row.n_controlled == 1 and row.truth_lost == 2
+    assert math.degrees(row.rmse_mean) == pytest.approx(0.22, abs=1e-9)  # the one controlled seed only
+    # P5–P95 over the seeds: fragile at μ = 1 is 0.3° ± 0.05°.
+    r1 = summary[(summary.observer == "fragile") & (summary.friction == "1") & (summary.faults == "none")].iloc[0]
+    assert math.degrees(r1.rmse_p5) == pytest.approx(0.255, abs=1e-9)
+    assert math.degrees(r1.rmse_p95) == pytest.approx(0.345, abs=1e-9)
+
+
+def test_thresholds_come_from_the_shipped_ci_rules_when_one_matches() -> None:
+    from harness.stress_report import rmse_threshold
+
+    limit, source = rmse_threshold("step_steer", "kf_bicycle", "beta_rad")
+    assert limit == 0.0016 and source.startswith("ci.yaml rules[")
+    assert rmse_threshold("lane_change", "kf_bicycle", "vy_mps") == (0.3, "default")
+
+
+def test_stress_page_shows_curves_in_degrees_breaking_points_and_spin_outs(tmp_path: Path) -> None:
+    import json
+    import re
+
+    from stress_synthetic import RUN, stress_rows
+
+    from harness.stress_report import summarize, write_index
+
+    page = write_index(tmp_path, summarize(stress_rows()), RUN).read_text()
+    specs = {m.group(1): json.loads(m.group(2)) for m in
+             re.finditer(r"<script type='application/json' id='(stress-\d+)'>(.*?)</script>", page)}
+    assert len(specs) == 2  # β against μ, β against GNSS dropout
+    mu_fig = next(s for s in specs.values() if "vs μ" in s["layout"]["title"]["text"])
+    mean = next(t for t in mu_fig["data"] if t.get("name") == "fragile")
+    assert mean["x"] == [0.2, 0.4, 0.6, 0.8, 1.0] or sorted(mean["x"]) == [0.4, 0.6, 0.8, 1.0]
+    assert mean["y"][mean["x"].index(1.0)] == pytest.approx(0.3, rel=1e-4)  # degrees, not radians
+    bands = [t for t in mu_fig["data"] if t.get("fill") == "tonexty"]
+    assert len(bands) == 2  # one P5–P95 band per observer
+    assert any(t["marker"].get("symbol") == "x" and t["x"] == [0.6] for t in mu_fig["data"] if "marker" in t)
+    assert any("2/3 lost control" in a["text"] for a in mu_fig["layout"]["annotations"])
+    assert "<td>μ = 0.6</td><td>1 deg</td><td>default</td>" in page
+    assert "spun out at t=3.20 s" in page and "1 of 3" in page
+    assert "Plotly" in page and "https://" not in page.split("<script>")[0]
