@@ -43,7 +43,7 @@ MARKER = ".roadtruth"
 OWNER = ".roadtruth-owner"
 """File in a folder being written: the writing process (pid, start time, host), to tell stale from live."""
 
-LATE_ENTRIES = frozenset({"check.csv", "check.json", "index.html"})
+LATE_ENTRIES = frozenset({"check.csv", "check.json", "check.html", "index.html"})
 """Entries roadtruth adds to a finished folder (``check`` after its run, ``report`` rebuilding the page)."""
 
 LEGACY_COMPARE = frozenset({"compare.csv", "compare.html"})
