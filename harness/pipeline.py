@@ -315,9 +315,15 @@ def compute_scenario(task: ScenarioTask) -> tuple[ScenarioOutcome, RenderJob | N
 
 
 def _line(o: ScenarioOutcome) -> str:
-    bad = int((~o.metrics.drop_duplicates("observer")["status"].str.startswith("ok")).sum())
-    return (f"{o.name}: {o.entry['status']}, {len(o.runs)} observers"
-            f"{f' ({bad} not ok)' if bad else ''}, {sum(o.timings.values()):.1f} s")
+    # Skipped (not applicable, e.g. no radar) is counted apart from failed, as in the report.
+    from harness.report.verdicts import count_statuses, run_verdict
+
+    rows = o.metrics.groupby("observer")["status"].agg(list).to_dict() if len(o.metrics) else {}
+    c = count_statuses(run_verdict(str(r.get("status", "ok")), rows.get(name, []))
+                       for name, r in o.runs.items())
+    parts = [f"{c.ok} ok"] + ([f"{c.not_applicable} n/a"] if c.not_applicable else []) + [f"{c.failed} failed"]
+    return (f"{o.name}: {o.entry['status']}, {len(o.runs)} observers ({', '.join(parts)}), "
+            f"{sum(o.timings.values()):.1f} s")
 
 
 def _render_line(o: ScenarioOutcome) -> str:

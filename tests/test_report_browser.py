@@ -96,3 +96,68 @@ def test_screenshot_is_kept_as_an_artifact(real_run: Path, tmp_path: Path):
     assert img[10, 10].mean() < 80
     assert len({tuple(p) for p in img[::25, ::25].reshape(-1, 3)}) > 50
     shutil.copy(shot, ARTIFACTS / "report.png")
+
+
+def _frame_page(tmp_path: Path, page: Path, width: int, height: int) -> Path:
+    """A page holding ``page`` in an iframe exactly ``width`` px wide. Headless Chromium will not
+    make its window narrower than 500 px, so a 400 px screen is emulated by the iframe's viewport
+    (media queries and plotly's responsive sizing see 400 px). The outer page records the inner
+    document's scroll width once it has loaded."""
+    wrapper = tmp_path / f"frame{width}.html"
+    wrapper.write_text(
+        "<!doctype html><html><body style='margin:0'>"
+        f"<iframe id='f' src='{page.resolve().as_uri()}' style='border:0;width:{width}px;height:{height}px;display:block'></iframe>"
+        "<script>document.getElementById('f').addEventListener('load', function () {"
+        " var d = this.contentDocument.documentElement;"
+        " setTimeout(function () { document.body.dataset.innerScrollWidth = String(d.scrollWidth); }, 3000); });"
+        "</script></body></html>")
+    return wrapper
+
+
+@pytest.fixture(scope="module")
+def skips_only_report(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from report_folders import skips_only_run_folder
+
+    from harness.report import build_report
+
+    return build_report(skips_only_run_folder(tmp_path_factory.mktemp("skips") / "run"))
+
+
+def test_summary_counts_zero_failures_when_the_only_non_ok_runs_are_skips(skips_only_report: Path, tmp_path: Path):
+    res = chromium(skips_only_report, tmp_path / "profile", "--dump-dom", "--window-size=1400,2000")
+    assert res.returncode == 0, res.stderr[-2000:]
+    dom = res.stdout
+    assert console_lines(res.stderr) == []
+    card = re.search(r'<div class="card (\w+)" id="failed-card"><div class="big" data-failed="(\d+)">([^<]*)</div>', dom)
+    assert card and card.groups() == ("good", "0", "0 failed"), card and card.groups()
+    assert 'data-not-applicable="2">2 n/a' in dom
+    # The skipped radar runs are grey dots in the observers table; nothing is drawn as failed.
+    assert '<span class="dot na" title="step_steer: skipped: missing range_m"></span>' in dom
+    assert '<td class="cell failed"' not in dom and 'class="dot fail" title=' not in dom
+    assert "✘ rejected" not in dom and "not designed here (never ran)" in dom
+
+
+def test_screenshots_at_1400_and_400_px_and_no_overflow_at_400(skips_only_report: Path, real_run: Path, tmp_path: Path):
+    import cv2
+
+    ARTIFACTS.mkdir(exist_ok=True)
+    page = real_run / "index.html"
+    wide = tmp_path / "wide.png"
+    res = chromium(page, tmp_path / "p1", f"--screenshot={wide}", "--window-size=1400,2600")
+    assert res.returncode == 0 and wide.is_file(), res.stderr[-2000:]
+    img = cv2.imread(str(wide))
+    assert img.shape[:2] == (2600, 1400)
+    shutil.copy(wide, ARTIFACTS / "report-1400.png")
+    # 400 px: the page fits (wide tables scroll inside their own box), and a screenshot is kept.
+    wrapper = _frame_page(tmp_path, page, 400, 2600)
+    res = chromium(wrapper, tmp_path / "p2", "--dump-dom", "--window-size=600,2600", "--allow-file-access-from-files")
+    attrs = body_attrs(res.stdout)
+    assert "inner-scroll-width" in attrs, res.stderr[-2000:]
+    assert int(attrs["inner-scroll-width"]) <= 400
+    narrow = tmp_path / "narrow.png"
+    res = chromium(wrapper, tmp_path / "p3", f"--screenshot={narrow}", "--window-size=600,2600",
+                   "--allow-file-access-from-files")
+    assert res.returncode == 0 and narrow.is_file(), res.stderr[-2000:]
+    img = cv2.imread(str(narrow))[:, :400]
+    assert img[10, 10].mean() < 80  # the header bar is drawn inside the 400 px frame
+    cv2.imwrite(str(ARTIFACTS / "report-400.png"), img)
