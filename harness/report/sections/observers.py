@@ -1,4 +1,4 @@
-"""Observers: citation, certification of the LMI design, cost per step, and per scenario whether the
+"""Observers: citation, certification of the LMI design, and per scenario whether the
 run was ok, not applicable (grey) or failed (red) — three separate things."""
 
 from __future__ import annotations
@@ -29,7 +29,6 @@ class ObserversSection(Section):
         rows = []
         for obs in run.observer_names:
             om = m[m["observer"] == obs]
-            us = om["us_per_step"].dropna() if "us_per_step" in om else om.iloc[0:0]
             statuses = []
             reasons = []
             for scen in run.scenario_names:
@@ -47,7 +46,6 @@ class ObserversSection(Section):
                 "citation": meta.get("citation", ""), "states": meta.get("states") or sorted(set(om["state"])),
                 "design": page.designs.get(obs, "not_applicable"),
                 "design_reason": "; ".join(dict.fromkeys(reasons)),
-                "us_per_step": float(us.median()) if len(us) else None,
                 "statuses": statuses,
                 "counts": count_statuses(s["status"] for s in statuses),
                 "na_labels": sorted({s["label"] for s in statuses if s["kind"] == NOT_APPLICABLE}),

@@ -1,4 +1,5 @@
-"""Provenance: versions, git revision, seeds, options and timings from run.json."""
+"""Provenance: versions, git revision, seeds and options from run.json (times are in timings.json, kept
+off the page so that it is reproducible)."""
 
 from __future__ import annotations
 
@@ -26,7 +27,5 @@ class ProvenanceSection(Section):
             "git_revision": r.get("git_revision"),
             "options": options,
             "seeds": seeds,
-            "timings": r.get("timings_s", {}),
-            "wall_s": r.get("wall_s"),
             "raw": json.dumps(r, indent=1, sort_keys=True, default=str)[:20000],
         }

@@ -1,4 +1,4 @@
-"""Summary: what was run, how long it took, what failed (and, apart from it, what could not run),
+"""Summary: what was run, what failed (and, apart from it, what could not run),
 what the truth did, and whether frames could be rendered."""
 
 from __future__ import annotations
@@ -61,7 +61,6 @@ class SummarySection(Section):
         if not render:  # e.g. a replay: the scenarios say why there are no frames
             reasons = [run.scenario_entry(n).get("render", {}).get("reason") for n in run.scenario_names]
             render = {"enabled": False, "reason": next((r for r in reasons if r), None)}
-        timings = run.run.get("timings_s", {})
         return {
             "suite": run.run.get("suite", ""),
             "n_scenarios": len(run.scenario_names),
@@ -69,8 +68,6 @@ class SummarySection(Section):
             "n_rows": len(run.metrics),
             "n_runs": counts.total,
             "counts": counts,
-            "wall_s": run.run.get("wall_s"),
-            "timings": timings,
             "failures": failures,
             "not_applicable": not_applicable,
             "scenarios": scen_status,
