@@ -2,7 +2,7 @@
 broken down by stage. Run by hand: ``python benchmarks/bench_run.py [--jobs N] [--repeat K]``.
 
 The first run in a fresh checkout also pays numba compilation (cached on disk afterwards) and the
-LMI designs (cached in .roadtruth-cache); later runs show the steady state. Stage times are CPU
+LMI designs (cached in the user cache folder); later runs show the steady state. Stage times are CPU
 seconds summed over scenarios and processes (rendering overlaps the other stages), so they can add
 up to more than the wall time.
 """
@@ -38,19 +38,19 @@ def main() -> None:
             run_suite(out=out, jobs=a.jobs, render=not a.no_render, progress=False)
             wall = time.perf_counter() - t
             run = json.loads((out / "run.json").read_text())
+            timings = json.loads((out / "timings.json").read_text())  # times are kept out of run.json
             frames = sum(s["render"].get("n_rendered", 0) or 0 for s in run["scenarios"])
             sim_s = sum(s["duration_s"] for s in run["scenarios"])
             size = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
             print(f"\nrun {k + 1}: {len(run['scenarios'])} scenarios ({sim_s:.0f} s simulated) × "
                   f"{len(run['observers'])} observers, jobs={a.jobs}: wall {wall:.1f} s, "
                   f"output {size / 1e6:.1f} MB, index.html {(out / 'index.html').stat().st_size / 1e6:.1f} MB")
-            for stage, sec in run["timings_s"].items():
+            for stage, sec in timings["stages_s"].items():
                 print(f"  {stage:<10} {sec:7.2f} s")
             if frames:
-                print(f"  render: {frames} frames, {run['timings_s']['render'] / frames * 1e3:.0f} ms per frame")
-            for s in run["scenarios"]:
-                ts = s["timings_s"]
-                print(f"    {s['name']:<20} " + " ".join(f"{k}={v:.2f}" for k, v in ts.items()))
+                print(f"  render: {frames} frames, {timings['stages_s']['render'] / frames * 1e3:.0f} ms per frame")
+            for name, ts in timings["scenarios_s"].items():
+                print(f"    {name:<20} " + " ".join(f"{k}={v:.2f}" for k, v in ts.items()))
     print(f"\nload average after: {os.getloadavg()[0]:.2f}")
 
 
