@@ -67,6 +67,18 @@ def _rate(text: str) -> float:
     return v
 
 
+def _timeout(text: str) -> float:
+    v = _number(text, whole=False, lo=0.0, hi=1e6, what="in (0, 1000000] s")
+    if v <= 0.0:
+        raise argparse.ArgumentTypeError(f"must be in (0, 1000000] s (got {text})")
+    return v
+
+
+_OBSERVER_TIMEOUT_HELP = ("wall-time budget of each observer's design and run in seconds; an observer over "
+                          "it is reported as 'error: timed out after N s' and the others go on "
+                          "(default: max(60, 20 x the simulated duration))")
+
+
 class _CacheDirAction(argparse.Action):
     """``--cache-dir DIR``: the caches (LMI designs, finished stress cases) for this command.
 
@@ -95,7 +107,7 @@ def _cmd_run(a: argparse.Namespace) -> int:
     out = run_suite(scenarios=a.scenario, suite_name=a.suite, observers=a.observer, seed=a.seed,
                     jobs=a.jobs, out=Path(a.out), vehicle=a.vehicle, friction=a.friction,
                     sensors=a.sensors, faults=a.faults, log_rate_hz=a.log_rate, render=not a.no_render,
-                    progress=None)
+                    progress=None, observer_timeout_s=a.observer_timeout)
     print(f"report: {out / 'index.html'}")
     return EXIT_OK
 
@@ -178,7 +190,8 @@ def _cmd_check(a: argparse.Namespace) -> int:
     result = run_check(thresholds=Path(a.thresholds) if a.thresholds else None,
                        baseline=Path(a.baseline) if a.baseline else None,
                        junit=Path(a.junit) if a.junit else None, suite_name=a.suite, scenarios=a.scenario,
-                       observers=a.observer, seed=a.seed, jobs=a.jobs, out=Path(a.out))
+                       observers=a.observer, seed=a.seed, jobs=a.jobs, out=Path(a.out),
+                       observer_timeout_s=a.observer_timeout)
     print(result.summary())
     if not result.passed:
         raise CheckFailed(f"{result.n_failed} of {result.n_checks} checks failed (see {result.out})")
@@ -192,7 +205,7 @@ def _cmd_stress(a: argparse.Namespace) -> int:
                      frictions=parse_friction_list(a.friction) if a.friction else None,
                      faults=parse_fault_specs(a.faults) if a.faults else None,
                      seeds=a.seeds, base_seed=a.seed, jobs=a.jobs, dask=a.dask, out=Path(a.out), progress=None,
-                     fresh=a.fresh)
+                     fresh=a.fresh, observer_timeout_s=a.observer_timeout)
     print(f"report: {out / 'index.html'}")
     return EXIT_OK
 
@@ -200,7 +213,8 @@ def _cmd_stress(a: argparse.Namespace) -> int:
 def _cmd_replay(a: argparse.Namespace) -> int:
     from harness.replay import replay
 
-    out = replay(Path(a.log), vehicle=a.vehicle, columns=a.columns, observers=a.observer, out=Path(a.out))
+    out = replay(Path(a.log), vehicle=a.vehicle, columns=a.columns, observers=a.observer, out=Path(a.out),
+                 observer_timeout_s=a.observer_timeout)
     print(f"report: {out / 'index.html'}")
     return EXIT_OK
 
@@ -233,6 +247,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-render", action="store_true", help="skip MuJoCo frames and videos")
     common_sim(r)
     r.add_argument("--cache-dir", action=_CacheDirAction, help=_CACHE_HELP)
+    r.add_argument("--observer-timeout", type=_timeout, metavar="SECONDS", help=_OBSERVER_TIMEOUT_HELP)
     r.set_defaults(func=_cmd_run)
 
     s = sub.add_parser("simulate", help="ground truth and measurements only")
@@ -270,6 +285,7 @@ def build_parser() -> argparse.ArgumentParser:
     ck.add_argument("--jobs", type=_positive_int, default=1, help="parallel processes")
     ck.add_argument("--out", default="reports/check", help="run folder (default reports/check)")
     ck.add_argument("--cache-dir", action=_CacheDirAction, help=_CACHE_HELP)
+    ck.add_argument("--observer-timeout", type=_timeout, metavar="SECONDS", help=_OBSERVER_TIMEOUT_HELP)
     ck.set_defaults(func=_cmd_check)
 
     st = sub.add_parser("stress", help="robustness sweeps: friction x faults x Monte Carlo seeds")
@@ -286,6 +302,7 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--fresh", action="store_true",
                     help="recompute every case instead of loading the ones an earlier sweep finished")
     st.add_argument("--cache-dir", action=_CacheDirAction, help=_CACHE_HELP)
+    st.add_argument("--observer-timeout", type=_timeout, metavar="SECONDS", help=_OBSERVER_TIMEOUT_HELP)
     st.set_defaults(func=_cmd_stress)
 
     rl = sub.add_parser("replay", help="run observers on a recorded log and score them")
@@ -295,6 +312,7 @@ def build_parser() -> argparse.ArgumentParser:
     rl.add_argument("--observer", type=_csv_list, help="comma-separated observers (default: all)")
     rl.add_argument("--out", default="reports/replay", help="output folder (default reports/replay)")
     rl.add_argument("--cache-dir", action=_CacheDirAction, help=_CACHE_HELP)
+    rl.add_argument("--observer-timeout", type=_timeout, metavar="SECONDS", help=_OBSERVER_TIMEOUT_HELP)
     rl.set_defaults(func=_cmd_replay)
     return p
 

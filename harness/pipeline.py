@@ -24,13 +24,12 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import math  # noqa: E402
-import multiprocessing  # noqa: E402
-import sys  # noqa: E402
+import shutil  # noqa: E402
 import time  # noqa: E402
 import traceback  # noqa: E402
 import zlib  # noqa: E402
 from collections.abc import Iterable, Sequence  # noqa: E402
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed  # noqa: E402
+from concurrent.futures import Future, as_completed  # noqa: E402
 from dataclasses import dataclass, field  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
@@ -45,11 +44,13 @@ from harness.report.rundata import (  # noqa: E402
     FLOAT_FORMAT,
     events_list,
     git_revision,
+    new_scenario_folder,
     scenario_info,
     versions,
     write_csv,
     write_json,
 )
+from harness.worker_pool import WorkerCrashed, WorkerPool, start_method  # noqa: E402
 
 STAGES: tuple[str, ...] = ("simulate", "sensors", "observers", "scoring", "write", "render")
 
@@ -68,6 +69,7 @@ class ScenarioTask:
     faults: str | None
     log_rate_hz: float
     render: bool
+    observer_timeout_s: float | None = None  # per-observer budget [s]; None = scaled with the duration
 
 
 @dataclass(frozen=True)
@@ -199,16 +201,21 @@ class Stages:
 
 def evaluate_scenario(sc: Any, vehicle: Any, observers: Sequence[str], sim_seed: int, sensor_seed: int, *,
                       sensors: str | None = None, faults: str | None = None,
-                      timings: dict[str, float] | None = None) -> Stages:
+                      timings: dict[str, float] | None = None,
+                      observer_timeout_s: float | None = None) -> Stages:
     """Simulate, sense and estimate one prepared scenario (the shared core of ``run`` and ``stress``).
 
     Bad input (``InputError``) propagates; any other crash is returned as a status, so one broken
     scenario never stops a suite. ``timings`` (if given) receives the simulate/sensors/observers seconds.
+    ``observer_timeout_s``: time budget of each observer [s] (see ``harness.estimate.run_observers``).
     """
+    from harness import observer_host
     from harness.estimate import run_observers
     from harness.sensors import emulate
     from harness.simulate import simulate
 
+    if observers:
+        observer_host.prestart()  # its imports overlap the simulation
     timings = timings if timings is not None else {}
     empty = pd.DataFrame(columns=ESTIMATE_COLUMNS)
     t = time.perf_counter()
@@ -230,7 +237,7 @@ def evaluate_scenario(sc: Any, vehicle: Any, observers: Sequence[str], sim_seed:
                        outages=sc.outages, lane_gaps=sc.lane_gaps)
         timings["sensors"] = time.perf_counter() - t
         t = time.perf_counter()
-        estimates, runs = run_observers(meas.frame, vehicle, list(observers))
+        estimates, runs = run_observers(meas.frame, vehicle, list(observers), timeout_s=observer_timeout_s)
         timings["observers"] = time.perf_counter() - t
     except InputError:
         raise
@@ -240,31 +247,42 @@ def evaluate_scenario(sc: Any, vehicle: Any, observers: Sequence[str], sim_seed:
     return Stages(truth, meas, estimates, runs)
 
 
-def compute_scenario(task: ScenarioTask) -> tuple[ScenarioOutcome, RenderJob | None]:
-    """Everything but the render; returns the render job (None if ``task.render`` is off)."""
+def compute_scenario(task: ScenarioTask, *, failed: str | None = None) -> tuple[ScenarioOutcome, RenderJob | None]:
+    """Everything but the render; returns the render job (None if ``task.render`` is off).
+
+    ``failed``: an ``error: …`` status that stands for the stages instead of running them (a worker
+    process that died holding the scenario, see :func:`crashed_scenario`).
+    """
     from harness.render import RenderSource
     from harness.scoring import score
+    from harness.truth_events import scored_until_of, status_of
 
     timings = dict.fromkeys(STAGES, 0.0)
-    folder = task.run_dir / task.name
-    folder.mkdir(parents=True, exist_ok=True)
     sc = prepare_scenario(task.name, task.vehicle, task.friction)
+    # The folder is named from the scenario's sanitised name, never from the path it was given by.
+    label, folder = new_scenario_folder(task.run_dir, sc.name)
     veh = sc.vehicle_params()
     ss, sim_seed, sensor_seed = scenario_seeds(sc.seed, task.name, task.seed)
     entry: dict[str, Any] = {
-        "name": task.name, "description": sc.description, "tags": list(sc.tags), "vehicle": veh.name,
+        "name": label, "description": sc.description, "tags": list(sc.tags), "vehicle": veh.name,
         "duration_s": sc.duration_s, "sensors": task.sensors or sc.sensors,
         "seed": task.seed if task.seed is not None else sc.seed,
-    from harness.truth_events import scored_until_of, status_of
         "entropy": str(ss.entropy), "spawn_key": list(ss.spawn_key),
         "simulation_seed": sim_seed, "sensor_seed": sensor_seed, "status": "ok",
     }
 
-    st = evaluate_scenario(sc, veh, task.observers, sim_seed, sensor_seed, sensors=task.sensors,
-                           faults=task.faults, timings=timings)
+    st = (evaluate_scenario(sc, veh, task.observers, sim_seed, sensor_seed, sensors=task.sensors,
+                            faults=task.faults, timings=timings, observer_timeout_s=task.observer_timeout_s)
+          if failed is None else
+          Stages(FailedTruth(status=failed), None, pd.DataFrame(columns=ESTIMATE_COLUMNS), None, failed))
     truth = st.truth
     entry["status"] = st.error if (st.error and truth.ok) else str(truth.status)
     entry["sim_steps"] = len(truth.frame)
+    # What the car did (spun out, left the road, ...) and where scoring stops because of it.
+    scored_until = scored_until_of(truth)
+    entry["truth_status"] = status_of(truth)
+    entry["truth_events"] = [e.to_dict() for e in getattr(truth, "truth_events", ())]
+    entry["scored_until_s"] = scored_until
     if st.traceback:
         entry["traceback"] = st.traceback
 
@@ -278,11 +296,6 @@ def compute_scenario(task: ScenarioTask) -> tuple[ScenarioOutcome, RenderJob | N
 
     estimates = st.estimates
     if st.runs is not None:
-    # What the car did (spun out, left the road, ...) and where scoring stops because of it.
-    scored_until = scored_until_of(truth)
-    entry["truth_status"] = status_of(truth)
-    entry["truth_events"] = [e.to_dict() for e in getattr(truth, "truth_events", ())]
-    entry["scored_until_s"] = scored_until
         runs = st.runs
     elif not truth.ok:
         runs = {o: SkippedRun(status=f"skipped: simulation {truth.status}") for o in task.observers}
@@ -290,7 +303,7 @@ def compute_scenario(task: ScenarioTask) -> tuple[ScenarioOutcome, RenderJob | N
         runs = {o: SkippedRun(status=f"skipped: {st.error}") for o in task.observers}
 
     t = time.perf_counter()
-    metrics = score(truth.frame, estimates, scenario=task.name, runs=runs, mass_kg=veh.mass_kg,
+    metrics = score(truth.frame, estimates, scenario=label, runs=runs, mass_kg=veh.mass_kg,
                     scored_until_s=scored_until)
     timings["scoring"] = time.perf_counter() - t
 
@@ -306,7 +319,7 @@ def compute_scenario(task: ScenarioTask) -> tuple[ScenarioOutcome, RenderJob | N
         if best is not None:
             beta = estimates[(estimates["observer"] == best) & (estimates["state"] == "beta_rad")]
             beta = beta[["t_s", "value"]].reset_index(drop=True)
-        job = RenderJob(source=RenderSource.from_truth(truth), run_dir=task.run_dir, name=task.name,
+        job = RenderJob(source=RenderSource.from_truth(truth), run_dir=task.run_dir, name=label,
                         beta=beta, observer=best)
     entry["timings_s"] = {k: round(v, 4) for k, v in timings.items()}
     outcome = ScenarioOutcome(name=task.name, metrics=metrics, entry=entry,
@@ -333,29 +346,53 @@ def _render_line(o: ScenarioOutcome) -> str:
     return f"{o.name}: rendered {r.get('n_rendered', 0)} frames in {o.timings.get('render', 0.0):.1f} s"
 
 
-def process_pool(workers: int) -> ProcessPoolExecutor:
-    """Worker processes that start from a fresh interpreter (forkserver on Linux, spawn elsewhere).
+def process_pool(fn: Any, workers: int, what: str = "worker") -> WorkerPool:
+    """Supervised worker processes running ``fn`` (see :mod:`harness.worker_pool`): they start from a
+    fresh interpreter (``start_method()``: forkserver on Linux, never plain fork, which hangs renders
+    after an OpenGL context), die with the run, and a crash fails only the task the worker held."""
+    assert start_method() != "fork"
+    return WorkerPool(fn, workers, what=what)
 
-    Never plain fork: a process that has made an OpenGL (EGL) context, e.g. a test session that
-    rendered before, hangs its forked children when they render.
+
+def crashed_scenario(task: ScenarioTask, crash: WorkerCrashed, tasks: Sequence[ScenarioTask] = ()) -> ScenarioOutcome:
+    """The outcome of a scenario whose worker process died holding it: status ``error: worker
+    crashed (signal N)``, its observers skipped, and the files of a failed scenario in its folder.
+
+    What the worker had half-written is removed first (the folder is inside this run's own temporary
+    folder), unless another task of ``tasks`` has a scenario of the same name, whose folder it might be.
     """
-    method = "forkserver" if sys.platform.startswith("linux") else "spawn"
-    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(method))
+    from harness.report.rundata import scenario_folder_name
+
+    def label(t: ScenarioTask) -> str:
+        return scenario_folder_name(prepare_scenario(t.name, t.vehicle, t.friction).name)
+
+    mine = label(task)
+    if sum(label(t) == mine for t in tasks if t is not task) == 0:
+        shutil.rmtree(task.run_dir / mine, ignore_errors=True)
+    outcome, _ = compute_scenario(task, failed=f"error: {crash}")
+    if task.render:
+        outcome.entry["render"] = {"frames": [], "video": None, "reason": f"not rendered: the {crash}",
+                                   "n_rendered": 0}
+    return outcome
 
 
 def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress) -> Iterable[ScenarioOutcome]:
     """Run the scenario tasks; yields outcomes as they complete (any order).
 
-    With ``jobs > 1`` each worker process runs whole scenarios, renders included. Otherwise the main
-    process simulates, senses, estimates and scores one scenario after the other while renders (the
-    slowest stage with software GL) run in two background processes, so a 2-core machine is used
-    even without ``--jobs``. The main process itself never renders (see ``process_pool``).
+    With ``jobs > 1`` each worker process runs whole scenarios, renders included; a worker that dies
+    (a segfault in compiled code) costs only its scenario (:func:`crashed_scenario`) and is replaced.
+    Otherwise the main process simulates, senses, estimates and scores one scenario after the other
+    while renders (the slowest stage with software GL) run in two background processes, so a 2-core
+    machine is used even without ``--jobs``. The main process itself never renders (see ``process_pool``).
     """
     if jobs > 1 and len(tasks) > 1:
-        with process_pool(min(jobs, len(tasks))) as pool:
-            futures = [pool.submit(run_scenario, task) for task in tasks]
+        with process_pool(run_scenario, min(jobs, len(tasks))) as pool:
+            futures = {pool.submit(task): task for task in tasks}
             for fut in as_completed(futures):
-                o = fut.result()
+                try:
+                    o = fut.result()
+                except WorkerCrashed as crash:
+                    o = crashed_scenario(futures[fut], crash, tasks)
                 progress.item(_line(o))
                 if tasks[0].render:
                     progress.item(_render_line(o))
@@ -367,15 +404,19 @@ def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress) -> Iter
             progress.item(_line(o))
             yield o
         return
-    with process_pool(min(2, len(tasks))) as renderer:
+    with process_pool(render_job, min(2, len(tasks)), what="renderer") as renderer:
         pending: list[tuple[ScenarioOutcome, Future | None]] = []
         for task in tasks:
             o, job = compute_scenario(task)
             progress.item(_line(o))
-            pending.append((o, renderer.submit(render_job, job) if job is not None else None))
+            pending.append((o, renderer.submit(job) if job is not None else None))
         for o, fut in pending:
             if fut is not None:
-                entry, seconds = fut.result()
+                try:
+                    entry, seconds = fut.result()
+                except WorkerCrashed as crash:  # a crash in the GL stack costs only this render
+                    entry = {"frames": [], "video": None, "reason": f"rendering failed: {crash}", "n_rendered": 0}
+                    seconds = 0.0
                 o.entry["render"] = entry
                 o.timings["render"] = seconds
                 o.entry["timings_s"]["render"] = round(seconds, 4)
@@ -432,6 +473,7 @@ def run_suite(
     log_rate_hz: float = 100.0,
     render: bool = True,
     progress: bool | None = None,
+    observer_timeout_s: float | None = None,
 ) -> Path:
     """Run a suite of scenarios × observers and write the run folder with its report.
 
@@ -447,16 +489,20 @@ def run_suite(
     log_rate_hz : rate of ``truth.csv`` [Hz] (scoring uses the full simulation rate).
     render : render MuJoCo frames and videos.
     progress : True = tqdm bar, False = one line per scenario, None = bar only on a terminal.
+    observer_timeout_s : wall-time budget of each observer's design + run [s]; default
+        max(60 s, 20 × the scenario's simulated duration). Over budget: ``error: timed out after N s``.
 
     Returns
     -------
     Path
         The run folder (resolved).
     """
+    from harness.estimate import check_observer_timeout
     from harness.report import build_report
 
     t_wall = time.perf_counter()
     check_log_rate(log_rate_hz)
+    check_observer_timeout(observer_timeout_s)
     names, chosen = _resolve(scenarios, suite_name, observers, vehicle, friction, sensors, faults)
     bar = Progress(len(names) * (2 if render else 1), progress, desc="roadtruth run")
     out = Path(out)
@@ -465,7 +511,7 @@ def run_suite(
                                inputs=[*(scenarios or []), vehicle, friction, sensors]) as tmp:
             tasks = [ScenarioTask(name=n, run_dir=tmp, observers=tuple(chosen), seed=seed, vehicle=vehicle,
                                   friction=friction, sensors=sensors, faults=faults, log_rate_hz=log_rate_hz,
-                                  render=render) for n in names]
+                                  render=render, observer_timeout_s=observer_timeout_s) for n in names]
             outcomes = {o.name: o for o in _run_tasks(tasks, jobs, bar)}
             ordered = [outcomes[n] for n in names]
             metrics = pd.concat([o.metrics for o in ordered], ignore_index=True)

@@ -177,6 +177,7 @@ def replay(
     observers: list[str] | None = None,
     out: Path = Path("reports/replay"),
     progress: Progress | None = None,
+    observer_timeout_s: float | None = None,
 ) -> Path:
     """Run observers on a recorded log and score them against its reference channels.
 
@@ -196,6 +197,8 @@ def replay(
         Output folder, replaced atomically when complete.
     progress : callable, optional
         Called with one line per step.
+    observer_timeout_s : float, optional
+        Wall-time budget of each observer per segment [s] (default: max(60 s, 20 × the segment's duration)).
 
     Returns
     -------
@@ -224,7 +227,7 @@ def replay(
     for s in rl.run_segments:
         m = rl.measurements[s.index]
         say(f"segment {s.index}: {s.t_start_s:.2f}–{s.t_end_s:.2f} s, {len(m)} steps")
-        est, runs = run_observers(m, veh, names)
+        est, runs = run_observers(m, veh, names, timeout_s=observer_timeout_s)
         est = est.copy()
         est["segment"] = s.index
         est_parts.append(est)

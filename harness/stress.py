@@ -142,6 +142,7 @@ class StressCase:
     seed_index: int
     seed: int
     observers: tuple[str, ...]
+    observer_timeout_s: float | None = None  # per-observer budget [s]; None = scaled with the duration
 
 
 @dataclass(frozen=True)
@@ -196,7 +197,8 @@ def run_case(case: StressCase) -> CaseResult:
         veh = sc.vehicle_params()
         mass = veh.mass_kg
         _, sim_seed, sensor_seed = scenario_seeds(sc.seed, case.scenario, case.seed)
-        st = evaluate_scenario(sc, veh, case.observers, sim_seed, sensor_seed, faults=faults)
+        st = evaluate_scenario(sc, veh, case.observers, sim_seed, sensor_seed, faults=faults,
+                               observer_timeout_s=case.observer_timeout_s)
         truth, estimates, tb = st.truth, st.estimates, st.traceback
         if st.runs is not None:
             runs = st.runs
@@ -222,7 +224,7 @@ def run_case(case: StressCase) -> CaseResult:
 
 
 def build_cases(scenarios: list[str], frictions: list[str], faults: list[str], seeds: list[int],
-                observers: list[str]) -> list[StressCase]:
+                observers: list[str], observer_timeout_s: float | None = None) -> list[StressCase]:
     """The Cartesian product scenarios × frictions × faults × seeds, in that nesting order."""
     cases: list[StressCase] = []
     for sc in scenarios:
@@ -230,22 +232,53 @@ def build_cases(scenarios: list[str], frictions: list[str], faults: list[str], s
             for fa in faults:
                 for k, s in enumerate(seeds):
                     cases.append(StressCase(index=len(cases), scenario=sc, friction=fr, faults=fa,
-                                            seed_index=k, seed=s, observers=tuple(observers)))
+                                            seed_index=k, seed=s, observers=tuple(observers),
+                                            observer_timeout_s=observer_timeout_s))
     return cases
 
 
 # ---- execution -----------------------------------------------------------------------------------
 
+def _crashed_case(case: StressCase, crash: Exception) -> CaseResult:
+    """The rows of a case whose worker process died holding it (``error: worker crashed (signal N)``)."""
+    from harness.pipeline import ESTIMATE_COLUMNS, FailedTruth, SkippedRun, prepare_scenario
+    from harness.scoring import score
+
+    status = f"error: {crash}"
+    truth = FailedTruth(status=status)
+    try:
+        mu = _mu_label(prepare_scenario(case.scenario, None,
+                                        None if case.friction == SCENARIO_FRICTION else case.friction))
+    except Exception:  # noqa: BLE001 - the label is cosmetic; the inputs were validated up front
+        mu = math.nan
+    metrics = score(truth.frame, pd.DataFrame(columns=ESTIMATE_COLUMNS), scenario=case.scenario,
+                    runs={o: SkippedRun(status=status) for o in case.observers}, mass_kg=None)
+    head = {"case": case.index, "friction": case.friction, "mu": mu, "faults": case.faults,
+            "seed_index": case.seed_index, "seed": case.seed, "truth_status": status,
+            "peak_abs_ay_mps2": math.nan, "peak_abs_beta_rad": math.nan}
+    for i, (k, v) in enumerate(head.items()):
+        metrics.insert(i, k, [v] * len(metrics))
+    return CaseResult(index=case.index, rows=metrics, seconds=0.0, traceback=status)
+
+
 def _run_local(cases: list[StressCase], jobs: int) -> Iterator[CaseResult]:
+    """Run the cases in this process or in ``jobs`` supervised worker processes (any order); a worker
+    that dies costs only its case (``error: worker crashed (signal N)``) and is replaced."""
     from harness.pipeline import process_pool
+    from harness.worker_pool import WorkerCrashed
 
     if jobs <= 1 or len(cases) <= 1:
         for c in cases:
             yield run_case(c)
         return
-    with process_pool(min(jobs, len(cases))) as pool:
-        for fut in as_completed([pool.submit(run_case, c) for c in cases]):
-            yield fut.result()
+    with process_pool(run_case, min(jobs, len(cases))) as pool:
+        futures = {pool.submit(c): c for c in cases}
+        for fut in as_completed(futures):
+            try:
+                result = fut.result()
+            except WorkerCrashed as crash:
+                result = _crashed_case(futures[fut], crash)
+            yield result
 
 
 def _run_dask(cases: list[StressCase], address: str, jobs: int, info: dict[str, Any]) -> Iterator[CaseResult]:
@@ -341,7 +374,8 @@ def _resolve(scenarios: list[str] | None, suite_name: str, observers: list[str] 
 def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", observers: list[str] | None,
                frictions: list[str] | None, faults: list[str] | None, seeds: int = 1,
                base_seed: int | None = None, jobs: int = 1, dask: str | None = None,
-               out: Path = Path("reports/stress"), progress: bool | None = None, fresh: bool = False) -> Path:
+               out: Path = Path("reports/stress"), progress: bool | None = None, fresh: bool = False,
+               observer_timeout_s: float | None = None) -> Path:
     """Run a robustness sweep and write ``stress.csv``, ``summary.csv``, ``run.json``, ``index.html``.
 
     Parameters
@@ -359,6 +393,8 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
     dask : None (local processes), ``"local"`` (a LocalCluster on 127.0.0.1) or a scheduler address.
     out : output folder; replaced atomically when the sweep is complete.
     progress : True = tqdm bar, False = one line per case, None = bar only on a terminal.
+    observer_timeout_s : wall-time budget of each observer's design + run [s] (default: max(60 s,
+        20 × the simulated duration)); over budget, the observer's rows say ``error: timed out after N s``.
     fresh : compute every case even when the case cache holds it (the cache is refreshed). Otherwise
         a case finished by an earlier sweep is loaded (:mod:`harness.stress_cache`): a rerun resumes,
         a wider sweep computes only its new cases, and the files are the same bytes either way.
@@ -373,12 +409,14 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
     InputError
         Bad scenario, observer, friction, fault spec, seed count or Dask address (before any work).
     """
+    from harness.estimate import check_observer_timeout
     from harness.stress_report import summarize, write_index
 
     t_wall = time.perf_counter()
     n_seeds = parse_seed_count(seeds)
     if jobs < 1:
         raise StressSpecError(f"must be >= 1 (got {jobs})", field="--jobs")
+    check_observer_timeout(observer_timeout_s)
     base = DEFAULT_BASE_SEED if base_seed is None else int(base_seed)
     if base < 0:
         raise StressSpecError(f"must be >= 0 (got {base})", field="--seed")
@@ -386,7 +424,7 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
     fa_list = [NO_FAULTS if f.lower() == NO_FAULTS else f for f in dict.fromkeys(faults)] if faults else [NO_FAULTS]
     names, chosen = _resolve(scenarios, suite_name, observers, fr_list, fa_list)
     seed_values = monte_carlo_seeds(base, n_seeds)
-    cases = build_cases(names, fr_list, fa_list, seed_values, chosen)
+    cases = build_cases(names, fr_list, fa_list, seed_values, chosen, observer_timeout_s)
     keys = _case_keys(cases)
     results: dict[int, CaseResult] = {} if fresh else _load_cached(cases, keys)
     todo = [c for c in cases if c.index not in results]
