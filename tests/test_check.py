@@ -296,11 +296,11 @@ def test_cli_check_passes_then_fails_with_strict_thresholds(tmp_path: Path):
     assert out_lines[0].split()[-1] == "reason"
     assert any(ln.startswith("rule ") and ln.endswith("matches no metrics row (scenario *, observer kf_bicycel, "
                                                      "state *; a typo?)") for ln in out_lines)
-    assert out_lines[-1].startswith("check FAILED: 2 of") and "2 of 3 rules broken" in out_lines[-1]
+    assert out_lines[-1].startswith("check FAILED: 2 of") and "2 of 4 rules broken" in out_lines[-1]  # 2 rules, the regression, the simulation
     page = (tmp_path / "bad" / "check.html").read_text()
     main = page[page.index("<main>"):]
     assert re.match(r"<main>\s*<div class='verdict fail' id='verdict'><div class='big'>FAIL</div>", main)
-    assert "2 of 3 rules broken" in main[:600] and "rmse = " in main[:2000]
+    assert "2 of 4 rules broken" in main[:600] and "rmse = " in main[:2000]
     assert "<div class='big'>PASS</div>" in (tmp_path / "ok" / "check.html").read_text()
     # Same seeds -> identical metrics: every regression check against the first run passes at rel_tol 0.
     regress = [c for c in root.iter("testcase") if "baseline" in c.get("name")]
