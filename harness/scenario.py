@@ -1,4 +1,4 @@
-"""Scenario files: one YAML per driving test (docs/helpers/SCENARIO_SCHEMA.md), validated on load.
+"""Scenario files: one YAML per driving test (docs/SCENARIOS.md), validated on load.
 
 A scenario names its vehicle, road, friction map, driver, duration and initial speed, plus sensor
 preset, scheduled outages, lane-marking gaps and labelled events. Suites are tag queries over the

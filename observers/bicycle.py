@@ -1,6 +1,6 @@
 r"""Linear single-track (bicycle) model and the two model-only baselines.
 
-Model (seed 001, Y. Wang 2014, eqs. (3.13)–(3.18); also Rajamani, *Vehicle Dynamics and Control*,
+Model (Y. Wang, PhD dissertation, Auburn 2014, eqs. (3.13)–(3.18); also Rajamani, *Vehicle Dynamics and Control*,
 2nd ed., sec. 2.3). With the CONTRACT slip definitions linearised for small angles,
 
 .. math::
@@ -112,7 +112,7 @@ def axle_stiffness(vehicle: VehicleParams) -> tuple[float, float]:
 
 
 def vy_r_model(vehicle: VehicleParams, vx_mps: float) -> tuple[np.ndarray, np.ndarray]:
-    """Linear bicycle in ``(v_y, r)``, seed 001 eq. (3.17) (``-v_x r`` moved into A).
+    """Linear bicycle in ``(v_y, r)``, Wang 2014 eq. (3.17) (``-v_x r`` moved into A).
 
     Returns
     -------
@@ -136,7 +136,7 @@ def ay_output(vehicle: VehicleParams, vx_mps: float) -> tuple[np.ndarray, float]
 
 
 def beta_r_model(vehicle: VehicleParams, vx_mps: float, ax_mps2: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Linear bicycle in ``(beta, r)``, seed 001 eq. (3.16), ``beta = v_y / v_x`` and ``v_x' = a_x``.
+    """Linear bicycle in ``(beta, r)``, Wang 2014 eq. (3.16), ``beta = v_y / v_x`` and ``v_x' = a_x``.
 
     Returns
     -------
@@ -152,7 +152,7 @@ def beta_r_model(vehicle: VehicleParams, vx_mps: float, ax_mps2: float = 0.0) ->
 
 
 def slip_model_terms(vehicle: VehicleParams) -> tuple[np.ndarray, np.ndarray]:
-    """``A1`` and ``Bf0`` of the slip-angle LPV model, seed 001 eq. (3.19).
+    """``A1`` and ``Bf0`` of the slip-angle LPV model, Wang 2014 eq. (3.19).
 
     ``A(theta) = theta1 A1 - theta2 I`` with ``theta1 = 1/v_x``, ``theta2 = a_x/v_x`` and
     ``A1 = Bf0 diag(C_f, C_r)``, ``Bf0 = [[-(1/m + lf^2/Iz), lf lr/Iz - 1/m], [lf lr/Iz - 1/m, -(1/m + lr^2/Iz)]]``.
@@ -169,7 +169,7 @@ def slip_model_terms(vehicle: VehicleParams) -> tuple[np.ndarray, np.ndarray]:
 
 
 def alpha_model(vehicle: VehicleParams, vx_mps: float, ax_mps2: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Linear bicycle in ``(alpha_f, alpha_r)``, seed 001 eq. (3.18).
+    """Linear bicycle in ``(alpha_f, alpha_r)``, Wang 2014 eq. (3.18).
 
     ``x' = A x + B u`` with ``u = (delta, delta_dot, r)``.
 
@@ -204,7 +204,7 @@ class OpenLoopBicycle(ScalarLoopObserver):
     """
 
     name = "open_loop_bicycle"
-    citation = "Linear single-track model, seed 001 (Wang 2014) eq. (3.17); Rajamani 2012 sec. 2.3"
+    citation = "Linear single-track model (Y. Wang, PhD dissertation, Auburn 2014, eq. (3.17); Rajamani 2012, sec. 2.3)"
     inputs = ("delta_rad", "vx_mps")
     states = _VY_R_STATES
     default_options = {"vx_min_mps": 2.0}

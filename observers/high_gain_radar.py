@@ -1,4 +1,4 @@
-r"""Radar relative longitudinal high-gain observers of seed 000 (Bessafa 2024, ch. 4-5).
+r"""Radar relative longitudinal high-gain observers (H. Bessafa, PhD thesis 2024, ch. 4-5).
 
 H. Bessafa, "Advanced Estimation Algorithms for Connected and Autonomous Vehicle Applications", PhD
 thesis, Université de Lorraine (CRAN), 2024, HAL tel-04744305: Thm 4.3.1 (standard HGO, SHGO),
@@ -19,10 +19,10 @@ with ``T(theta) = diag(theta, theta^2, theta^3)``; the SHGO (4.15)-(4.16) is the
 Gains and certificate: :mod:`observers.high_gain_radar_design` (LMIs (4.20), (4.57), conditions
 (4.21), (4.58); decay rate ``kappa`` of (4.60)).
 
-CORRECTIONS implemented (digest sec. 6): Thm 4.3.3/4.3.4 print ``M = P^-1 Z^T``; the derivation gives
+CORRECTIONS implemented (printed statements that do not hold): Thm 4.3.3/4.3.4 print ``M = P^-1 Z^T``; the derivation gives
 ``M = T(theta) N / theta^n`` with ``N = P^-1 Z^T`` (used here). sec. 5.2.2(a) cites Thm 4.3.2 for the
-standard HGO; it is Thm 4.3.1. ``k_f`` is recomputed from the lead box (digest M7: ~2.0 for the
-seed's parameters) rather than taken as printed.
+standard HGO; it is Thm 4.3.1. ``k_f`` is recomputed from the lead box (about 2.0 for the
+thesis's lead parameters) rather than taken as printed.
 
 Discretisation: exact integration of the linear part ``A - L C - M e_2^T`` (any theta is stable)
 with the inputs as ramps over the step (first-order hold through the last two samples of each
@@ -30,7 +30,7 @@ signal: interpolation on the step of a new sample, extrapolation while it is hel
 from the data, never from the estimates, which would close a loop through the large gains).
 ``f(x_hat)`` is held over the step, evaluated with ``(v_L, a_L)`` clipped to the design box, so it is
 globally Lipschitz with the certified ``k_f``. A zero-order hold (``first_order_hold: false``) leaves
-an intra-sample ripple: on the seed model at 100 Hz it biases ``a_L`` by ~0.5 d' [m/s^2 per m/s].
+an intra-sample ripple: on the thesis's model at 100 Hz it biases ``a_L`` by ~0.5 d' [m/s^2 per m/s].
 
 Samples and dropouts (NaN = no new sample): a range sample older than ``hold_s`` is not used (the L
 term is dropped: the thesis's "position lost"); the same for the range rate and the M term. The

@@ -1,4 +1,4 @@
-r"""LMI designs of the radar high-gain observers of seed 000 (see :mod:`observers.high_gain_radar`).
+r"""LMI designs of the radar high-gain observers of Bessafa (2024) (see :mod:`observers.high_gain_radar`).
 
 Error coordinates ``eps = T(theta)^-1 (x - x_hat)``, ``T(theta) = diag(theta, theta^2, theta^3)``.
 
@@ -8,7 +8,7 @@ Error coordinates ``eps = T(theta)^-1 (x - x_hat)``, ``T(theta) = diag(theta, th
   [Y, -X]] < 0`` at every vertex ``xi`` of ``V^sigma`` (4.55)-(4.56); ``K = P^-1 Y^T``, ``N = P^-1 Z^T``,
   ``theta > max(sigma, 2 k_f lambda_max(P) / lambda)`` (4.58). Here ``z = h(x) = x_2`` (range rate), so
   the mean-value (DMVT) parameters of Lemma 4.3.1 are ``psi = (0, 1, 0)`` exactly; with
-  ``gamma_lo = 0 <= gamma_hi = 1`` (0 kept in the set, digest 7.1) the vertex set is
+  ``gamma_lo = 0 <= gamma_hi = 1`` (0 kept in the set) the vertex set is
   ``xi_2 in {0, sigma^-2}``, ``xi_1 = xi_3 = 0`` (``psi_j^theta = theta^(j-n-1) psi_j``). Remark 4.3.1:
   ``Z_2 >= z_min`` keeps ``N`` from collapsing to zero.
 * "as printed" SHGO (sec. 5.2.2(a)): the printed ``P``, ``Y`` and ``theta = 39.3974`` are evaluated,

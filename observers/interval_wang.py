@@ -1,4 +1,4 @@
-r"""Gain-scheduled (LPV) interval observer of the slip angles, seed 001 (Y. Wang 2014, ch. 4).
+r"""Gain-scheduled (LPV) interval observer of the slip angles (Y. Wang 2014, ch. 4).
 
 Y. Wang, *Robust Gain-Scheduled Observer Design with Application to Vehicle State Estimation*, PhD
 dissertation, Auburn University, 2014, ch. 4 (Theorems 3-5, Lemmas 11-14, eqs. (4.7)-(4.47)).
@@ -27,7 +27,7 @@ with ``w`` from Lemma 12 (4.13)-(4.17): ``[A(eta, xi) - A(eta, xi0)] x = T(x) v`
 gains make ``A_L = A(eta, xi) - L(eta) C`` Metzler and Hurwitz with a diagonal Lyapunov matrix at all
 16 vertex pairs (Theorem 5, :mod:`observers.interval_wang_design`), so ``x- <= x <= x+`` is kept.
 
-*No steering derivative* (digest 8.2.3): the copies run on ``z1 = alpha_f - delta``; the bounds of
+*No steering derivative* (a change of variable; the printed model needs ``delta'``): the copies run on ``z1 = alpha_f - delta``; the bounds of
 ``alpha_f`` are those of ``z1`` shifted by the known ``delta``; ``w`` is computed from the ``alpha``
 bounds, since the uncertain term multiplies ``alpha`` (it also covers the ``C_f delta`` input term of
 the ``z`` model).
@@ -44,7 +44,7 @@ intersample variation of sampled inputs (``r``, ``v_x`` move within a step), mea
 (the theorem assumes exact ``delta, r, v_x, a_x``) and any model mismatch (nonlinear tires, load
 transfer, roll): this is what the MuJoCo runs measure.
 
-*Input-error margins* (our extension, the digest's 8.2.5 suggestion): with ``|dr| <= nu_r``
+*Input-error margins* (our extension, not in the dissertation): with ``|dr| <= nu_r``
 (``yaw_rate_error_bound_radps``) and ``|d(y - delta)| <= nu_y`` (``y_error_bound_rad``) the error
 dynamics receive the extra input ``dr (1, 1)^T + L(eta) d(y - delta)``; adding
 ``nu_r + |L_i(eta)| nu_y`` to ``w+_i`` and subtracting it from ``w-_i`` restores the inclusion for

@@ -1,4 +1,4 @@
-r"""LMI design of the seed-001 LPV interval observer (see :mod:`observers.interval_wang`).
+r"""LMI design of Wang's (2014) LPV interval observer (see :mod:`observers.interval_wang`).
 
 Theorem 5 of the dissertation (4.32)-(4.35), over the ``4 eta x 4 xi = 16`` vertex pairs of
 Lemma 14 (``A(eta, xi) = eta1 Bf0 diag(xi) - eta2 I`` is bilinear in ``eta = (1/v_x, a_x/v_x)`` and
@@ -19,7 +19,7 @@ neutral-steer car is unobservable), so a second solve takes the smallest ``sum |
 gains fixed (linear in ``P`` and ``gamma``).
 
 The printed gain (4.47) is evaluated, not solved: Metzler check at every vertex pair (it fails at all
-16, digest O5), plus, for information, the smallest gamma a diagonal P certifies for it ignoring
+16), plus, for information, the smallest gamma a diagonal P certifies for it ignoring
 the Metzler condition.
 
 Certification (:func:`observers.lmi.certify_design`): the bounded-real LMI at the 16 vertex pairs and

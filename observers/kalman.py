@@ -466,7 +466,8 @@ class EKFBicycle(_NonlinearBicycle):
     """Extended Kalman filter on a nonlinear-tire (Magic Formula) bicycle model; measures r and a_y."""
 
     name = "ekf_bicycle"
-    citation = "EKF on the single-track model with Magic Formula axle forces (Pacejka, Tire and Vehicle Dynamics)"
+    citation = ("EKF on the single-track model with Magic Formula axle forces "
+                "(H. B. Pacejka, Tire and Vehicle Dynamics, 3rd ed., 2012, ch. 4)")
 
     def _setup(self) -> None:
         super()._setup()

@@ -27,9 +27,9 @@ the finite transient (Levant 2003, Livne & Levant 2014): without noise
 ``|z_i - f^(i)| <= mu_i L tau^(k+1-i)``; with sampling noise bounded by ``eps`` (and ``tau`` small)
 ``|z_i - f^(i)| <= nu_i L^(i/(k+1)) eps^((k+1-i)/(k+1))``. For the first derivative of a
 second-order differentiator (k = 2) that is ``O(tau^2)`` and ``O(L^(1/3) eps^(2/3))``: noise is
-amplified by ``(L/eps)^(1/3)``, the price the lane-camera premises of seed 002 pay.
+amplified by ``(L/eps)^(1/3)``, the price the lane-camera premises of Yacine et al. (2015) pay.
 
-Seed 002 (Yacine et al. 2015) uses a "third-order sliding mode differentiator" (Levant's k = 2:
+Yacine et al. (2015) use a "third-order sliding mode differentiator" (Levant's k = 2:
 a 3-sliding mode keeps ``z_0, z_1, z_2``) on the camera offset ``y_L`` and heading ``psi_L``.
 """
 

@@ -1,6 +1,6 @@
 """Certified LMI design toolkit shared by the LMI observers.
 
-* Polytopes of the scheduling parameters: the 4-vertex trapezoid of ``(1/v_x, a_x/v_x)`` (seed 001,
+* Polytopes of the scheduling parameters: the 4-vertex trapezoid of ``(1/v_x, a_x/v_x)`` (Wang 2014,
   Lemma 9, with the printed typo in the 4th vertex corrected) and the 16-vertex set of Lemma 10.
 * :func:`solve_lmi`: one cvxpy problem, Clarabel first, SCS as fallback; strict inequalities are
   imposed as ``<< -strictness * I`` with ``strictness`` tied to the solver tolerance.
@@ -10,7 +10,7 @@
   that fails is ``certified=False`` with the reason; it is never silently used as good.
 * A disk cache of :class:`DesignResult` (JSON) keyed by a hash of everything the design depends on,
   in the user cache folder (``$ROADTRUTH_CACHE`` overrides it); each entry carries a SHA-256 of its
-  content, so an edited entry is ignored and the design recomputed (why a digest and not a re-check:
+  content, so an edited entry is ignored and the design recomputed (why a checksum and not a re-check:
   see the cache section).
 
 cvxpy is imported lazily (only a cold design needs it).
@@ -128,7 +128,7 @@ def box_corners(bounds: Sequence[tuple[float, float]]) -> np.ndarray:
 
 
 def trapezoid_vertices(v_range: tuple[float, float], a_range: tuple[float, float]) -> np.ndarray:
-    """Seed 001 Lemma 9: ``(1/v, a/v)`` for v, a in boxes lies in the polytope of 4 vertices.
+    """Wang 2014, Lemma 9: ``(1/v, a/v)`` for v, a in boxes lies in the polytope of 4 vertices.
 
     Returns (4, 2) array ``[theta1, theta2]`` [s/m, 1/s].
     """
@@ -138,7 +138,7 @@ def trapezoid_vertices(v_range: tuple[float, float], a_range: tuple[float, float
 
 def scheduling_error_range(eps_range: tuple[float, float], eps2_range: tuple[float, float]
                            ) -> tuple[tuple[float, float], tuple[float, float]]:
-    """Seed 001 (3.71): ranges of ``eps1/(1+eps1)`` and ``(eps1-eps2)/(1+eps1)`` (bars restored)."""
+    """Wang 2014, eq. (3.71): ranges of ``eps1/(1+eps1)`` and ``(eps1-eps2)/(1+eps1)`` (bars restored)."""
     (e1lo, e1hi), (e2lo, e2hi) = eps_range, eps2_range
     x3 = (e1lo / (1 + e1lo), e1hi / (1 + e1hi))
     x4 = (1 - (1 + e2hi) / (1 + e1lo), 1 - (1 + e2lo) / (1 + e1hi))
@@ -147,7 +147,7 @@ def scheduling_error_range(eps_range: tuple[float, float], eps2_range: tuple[flo
 
 def robust_vertices(v_range: tuple[float, float], a_range: tuple[float, float],
                     eps1_range: tuple[float, float], eps2_range: tuple[float, float]) -> np.ndarray:
-    """Seed 001 Lemma 10 / (3.72): 16 vertices of ``(theta1, theta2, dtheta1, dtheta2)``.
+    """Wang 2014, Lemma 10 / eq. (3.72): 16 vertices of ``(theta1, theta2, dtheta1, dtheta2)``.
 
     ``x1 = 1/v``, ``x2 = a``, ``x3 = eps1/(1+eps1)``, ``x4 = (eps1-eps2)/(1+eps1)``; the vector is
     ``(x1, x1 x2, x1 x3, x1 x2 x4)``, multi-affine in the box corners. Returns (16, 4) array.

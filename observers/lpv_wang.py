@@ -1,4 +1,4 @@
-r"""Polytopic LPV Luenberger slip-angle observer of seed 001 (Y. Wang 2014, ch. 3).
+r"""Polytopic LPV Luenberger slip-angle observer (Y. Wang 2014, ch. 3).
 
 Model (3.18)-(3.21), states ``x = (alpha_f, alpha_r)``, scheduled on ``theta1 = 1/v_x``,
 ``theta2 = a_x/v_x``:
@@ -11,7 +11,7 @@ Model (3.18)-(3.21), states ``x = (alpha_f, alpha_r)``, scheduled on ``theta1 = 
 ``A1 = Bf0 diag(C_f, C_r)`` (:func:`observers.bicycle.slip_model_terms`). Observer (3.22)-(3.23):
 ``x' = A(theta) x + B(theta) u + L(theta)(y - C x)``, ``L(theta) = L0 + theta1 L1 + theta2 L2``.
 
-*No steering derivative* (digest 8.2.3): with ``z1 = alpha_f - delta`` the model becomes
+*No steering derivative* (a change of variable; the printed model needs ``delta'``): with ``z1 = alpha_f - delta`` the model becomes
 ``z' = A(theta) z + theta1 A1[:, 0] delta + (1, 1)^T r`` and ``y - delta = z1 - alpha_r``; the
 error dynamics, hence the LMIs and the gains, are unchanged. ``alpha_f = z1 + delta``.
 

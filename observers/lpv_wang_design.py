@@ -1,6 +1,6 @@
-r"""LMI designs of the seed-001 LPV slip-angle observer (see :mod:`observers.lpv_wang`).
+r"""LMI designs of Wang's (2014) LPV slip-angle observer (see :mod:`observers.lpv_wang`).
 
-Nominal (3.27) with a decay rate (digest O2): find ``P = P^T >= I`` and ``Q0, Q1, Q2`` with, at the 4
+Nominal (3.27) with a decay rate ``sigma``: find ``P = P^T >= I`` and ``Q0, Q1, Q2`` with, at the 4
 vertices of Lemma 9, ``He(P A(theta) - Q(theta) C) + 2 sigma P < 0``, ``L_i = P^-1 Q_i``. Then
 ``V = e^T P e`` decays at least as ``exp(-2 sigma t)`` for any variation of theta inside the polytope.
 Since ``L = 0`` already satisfies the LMI with sigma = 0 (the plant is stable), sigma is chosen as

@@ -1,4 +1,4 @@
-r"""Switched unknown-input interval observer of seed 004 (sound re-implementation, digest §6).
+r"""Switched unknown-input interval observer of Ifqir et al. (ACC 2018), in a sound derivative-free form.
 
 S. Ifqir, N. Aït Oufroukh, D. Ichalal, S. Mammar, "Vehicle Lateral Dynamics Estimation using Switched
 Unknown Inputs Interval Observers: Experimental Validation", ACC 2018, pp. 1138-1143,
@@ -9,8 +9,8 @@ Guaranteed bounds ``x^- <= x <= x^+`` for ``x = [v_y, r, psi_L, y_L]`` of the li
 ``rho`` an unknown input removed by decoupling (``P_i E_i = 0``, (24)-(25)), cornering stiffness
 ``c = c_0 (1 ± unc)`` and ``N = 3`` speed modes (35) with gains from the Theorem 2 SDP.
 
-Runtime form (digest §6.2, derivative-free, sound; replaces the literal eq. (19) whose ``|x^±|``
-corrections are sign-inconsistent, §5.8): in ``z = P_i x = x + H_i y``,
+Runtime form (derivative-free and sound; it replaces the printed eq. (19), which is not an inclusion:
+its ``|x^±|`` corrections are sign-inconsistent): in ``z = P_i x = x + H_i y``,
 
 .. math::
 
@@ -24,12 +24,12 @@ the Metzler ``N_0`` block (``e^{N_0 h} >= 0``), forcing held over the step.
 
 Structure (design constraints, see the design module): ``P = [e_1, e_2 + h, 0, 0]`` with ``h_3 = h_4 = 0``
 and the camera columns of ``K`` zero in rows 1-2. So the ``(v_y, r)`` bounds run on ``r``, ``delta``, ``v_x``
-only (the camera cannot tighten ``v_y`` when ``P >= 0``: digest §2.8), ``z_3 = z_4 = 0`` exactly and the
+only (the camera cannot tighten ``v_y`` when ``P >= 0``), ``z_3 = z_4 = 0`` exactly and the
 lane bounds are the camera sample ± its noise bound (``x_3 = z_3 - (H y)_3 = psi_L``). Between camera
 samples (NaN, 20 Hz cameras, marking gaps) the lane bounds are propagated open loop (they widen) with
 ``psi_L' = r - v_x rho``, ``y_L' = v_y + l_s r + v_x psi_L - l_s v_x rho``, ``|rho| <= curvature_bound_1pm``
 (the unknown input needs a bound only there). A missing gyro sample is replaced by the interval
-``[r^-, r^+]`` (digest §6.2, "Dropouts").
+``[r^-, r^+]``.
 
 Modes: ``sigma = i`` while ``v_x`` stays in ``[v_i - dV, v_i + dV]`` (overlapping bands = hysteresis);
 on leaving, the mode whose band holds ``v_x`` with the nearest centre. ``x^±`` is kept and ``z^±``
@@ -73,11 +73,11 @@ def _mul_ii(al: float, ah: float, bl: float, bh: float) -> tuple[float, float]:
 
 @register
 class SwitchedIntervalIfqir(ScalarLoopObserver):
-    """Switched unknown-input interval observer (seed 004), sound derivative-free form (digest §6)."""
+    """Switched unknown-input interval observer of Ifqir et al. (ACC 2018), sound derivative-free form."""
 
     name = "switched_interval_ifqir"
     citation = ("S. Ifqir, N. Ait Oufroukh, D. Ichalal, S. Mammar, ACC 2018, pp. 1138-1143, "
-                "eqs. (12)-(29), Theorem 2; sound form of digest 004 §6")
+                "eqs. (12)-(29), Theorem 2; derivative-free sound form (the printed eq. (19) is not an inclusion)")
     inputs = ("yaw_rate_radps", "delta_rad", "vx_mps", "psi_lane_rad", "y_lane_m")
     states = ("vy_mps", "yaw_rate_radps", "psi_lane_rad", "y_lane_m", "beta_rad")
     has_bounds = True

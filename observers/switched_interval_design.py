@@ -1,6 +1,6 @@
-r"""Theorem 2 SDP of the switched unknown-input interval observer of seed 004 (Ifqir et al., ACC 2018).
+r"""Theorem 2 SDP of the switched unknown-input interval observer of Ifqir et al. (ACC 2018).
 
-Plant per mode ``i`` (eqs. (12)-(16), digest §1), ``x = [v_y, r, psi_L, y_L]``, ``y = C x = [r, psi_L, y_L]``,
+Plant per mode ``i`` (eqs. (12)-(16)), ``x = [v_y, r, psi_L, y_L]``, ``y = C x = [r, psi_L, y_L]``,
 ``u = delta_f``, unknown input ``d = rho``:
 
 .. math::
@@ -9,14 +9,14 @@ Plant per mode ``i`` (eqs. (12)-(16), digest §1), ``x = [v_y, r, psi_L, y_L]``,
     A = \begin{bmatrix} -\frac{c_f+c_r}{m v} & \frac{c_r l_r - c_f l_f}{m v} - v & 0 & 0\\
     \frac{c_r l_r - c_f l_f}{I_z v} & -\frac{c_r l_r^2 + c_f l_f^2}{I_z v} & 0 & 0\\ 0&1&0&0\\ 1&l_s&v&0\end{bmatrix}.
 
-Interval matrices ``A_i^- <= A <= A_i^+`` (digest §1.5 and its sound §6.3 extension): elementwise
+Interval matrices ``A_i^- <= A <= A_i^+`` (the paper's interval matrices, computed soundly): elementwise
 min/max of the *stiffness* entries over the 4 corners of the ``±unc`` stiffness box and the speed band
 ``[v_i - dV, v_i + dV]`` (every entry is multi-affine in ``(c_f, c_r, 1/v)``, so corners suffice). The
 kinematic entries (``-v`` in ``a_12``, ``v`` in ``a_43``) are frozen at ``v_i`` here: ``v_x`` and ``r`` are
 both measured, so the observer adds ``P (A_kin(v_x) - A_kin(v_i)) x`` exactly at run time (ours; it
 avoids a ``dV``-sized uncertainty on ``a_12``).
 
-SDP (Theorem 2, eqs. (26)-(28), linearised as digest §6.1 with ``Z_i = Q_i Y_i``, ``alpha = 1``):
+SDP (Theorem 2, eqs. (26)-(28), linearised with ``Z_i = Q_i Y_i``, ``alpha = 1``):
 
 .. math::
 
@@ -24,11 +24,11 @@ SDP (Theorem 2, eqs. (26)-(28), linearised as digest §6.1 with ``Z_i = Q_i Y_i`
     \begin{bmatrix}\mathrm{He}(Q_iP_iA_i^+ - W_iC)+\varepsilon Q_i & Q_i\\ Q_i & -\gamma I\end{bmatrix}\prec 0,\quad
     Q_iP_iA_i^- - W_iC + \eta Q_i \ge 0,\quad Q_iP_i \ge 0,
 
-``Q_iP_i = Q_i(I + H_0C) - Z_i\Pi C`` (so ``P_iE_i = 0`` by construction, eq. (24)-(25) with the digest's
-corrected pseudo-inverse), ``K_i = Q_i^{-1}W_i``, ``H_i = H_0 - Q_i^{-1}Z_i\Pi``, ``P_i = I + H_iC``.
+``Q_iP_i = Q_i(I + H_0C) - Z_i\Pi C`` (so ``P_iE_i = 0`` by construction, eq. (24)-(25) with the
+pseudo-inverse transpose restored), ``K_i = Q_i^{-1}W_i``, ``H_i = H_0 - Q_i^{-1}Z_i\Pi``, ``P_i = I + H_iC``.
 
 Two structural constraints (ours, documented in :mod:`observers.switched_interval`): rows 3-4 of
-``Q_iP_i`` are zero (``h_3 = h_4 = 0``; with ``P >= 0`` the columns 3-4 already vanish, digest §2.8) and
+``Q_iP_i`` are zero (``h_3 = h_4 = 0``; with ``P >= 0`` the columns 3-4 already vanish) and
 ``W_i`` has zero camera columns in rows 1-2. Then the ``(v_y, r)`` bounds never use the camera (they
 could not be tightened by it anyway, §2.8), ``z_3 = z_4 = 0`` exactly, and a camera dropout does not
 touch the ``(v_y, r)`` bounds.
@@ -36,7 +36,7 @@ touch the ``(v_y, r)`` bounds.
 Certification (NumPy, independent of the solver) per mode: ``P >= 0``, ``P E = 0``, ``Q`` diagonal and
 ``>= alpha``, ``N(c, v) = P A(c, v) - K C`` Metzler and Hurwitz and the LMI (27) negative definite at every
 stiffness corner x speed-band end and on a 5x5x9 grid, (27) at ``N^+`` itself, ``N^+`` Hurwitz and
-``N_0 + P (A^+ - A^-)`` Hurwitz (width ISS of the sound form, digest §6.2). Dwell time
+``N_0 + P (A^+ - A^-)`` Hurwitz (width ISS of the sound form). Dwell time
 ``tau_a = ln(mu)/epsilon`` with ``mu = max_{i,j,k} q_i[k]/q_j[k]`` (``= 1`` with a common ``Q``) and the
 paper's ``ln(beta/alpha)/epsilon``.
 """

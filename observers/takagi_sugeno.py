@@ -1,9 +1,8 @@
-r"""Takagi-Sugeno observer with algebraic (camera) premises, seed 002.
+r"""Takagi-Sugeno observer with algebraic (camera) premises (Yacine et al. 2015).
 
 Z. Yacine, D. Ichalal, N. Ait-Oufroukh, S. Mammar, S. Djennoune, "Takagi-Sugeno Observers:
 Experimental Application for Vehicle Lateral Dynamics Estimation", IEEE Trans. Control Systems
-Technology 23(2):754-761, 2015, doi:10.1109/TCST.2014.2327592 (digest
-``shared/notes/seed-002-yacine-ts-observer.md``).
+Technology 23(2):754-761, 2015, doi:10.1109/TCST.2014.2327592.
 
 Model S1 (eqs. (8), (12)-(13)), ``x = (v_y, r, (F_f + F_r)/m, (a_f F_f - a_r F_r)/I_z)`` with tire
 relaxation ``tau = r_relax / v_x`` (``r_f = r_r``):
@@ -26,7 +25,7 @@ Premises (25)-(28), S2 (9): a Levant differentiator (:mod:`observers.levant_diff
 ``v_y,alg = y_L' - v_x psi_L - l_s psi_L'`` (26) feeds the slips of the weights only, and the road
 curvature is algebraic (10)-(11): ``rho = (r - psi_L')/v_x`` (typo after (10) corrected).
 
-Corrections implemented (digest section 5): Pacejka with the factor E (2)/(7); rule weight of
+Corrections implemented (printed equations that do not hold): Pacejka with the factor E (2)/(7); rule weight of
 ``A_jk`` is ``mu_fj mu_rk`` (the printed (22) swaps ``mu_2``/``mu_3``; option
 ``rule_order="as_printed"`` reproduces it, and it keeps the certificate — any convex weights do — but
 makes the TS model inexact, see the tests); ``rho = (r - psi_L')/v_x``; ``h_i(s_e)`` in (32); the
@@ -34,15 +33,15 @@ error bound (34) as in (45). The paper prints no gains, so there is no "as print
 
 Harness choices (documented options):
 
-* The TS vertices: ``tire_sectors="auto"`` uses the seed's ``M_f1, M_f2, M_r1, M_r2 = 4.2e4, 3.3e4,
+* The TS vertices: ``tire_sectors="auto"`` uses the paper's ``M_f1, M_f2, M_r1, M_r2 = 4.2e4, 3.3e4,
   4.9e4, 3.3e4`` N/rad for its own car ``yacine2016`` and, for any other vehicle, the sector bounds
   ``[f_min, f_max]`` of ``f(alpha) = F(alpha)/alpha`` of the vehicle's Magic Formula axle curves
   (``observers.tire_curves.axle_curves`` at friction ``mu``) over ``|alpha| <= slip_max_rad``;
   ``"magic_formula"`` forces the latter, a 4-tuple gives them explicitly. The membership ``f`` of the
   premise is always the vehicle's Magic Formula secant (clipped into the sector).
-* ``vx_range_mps`` (default (3, 40); the seed's (0.2, 17) is too low for highway scenarios): the
+* ``vx_range_mps`` (default (3, 40); the paper's (0.2, 17) is too low for highway scenarios): the
   measured ``v_x`` is clamped into it inside the model (the certificate then still holds, the model
-  is inexact outside). ``relaxation_length_m`` 0.1 (the seed's ``r_f = r_r``).
+  is inexact outside). ``relaxation_length_m`` 0.1 (the paper's ``r_f = r_r``).
 * Sampling: the camera (e.g. 20 Hz) drives the differentiators at its own rate (irregular steps,
   ``tau`` = time since its previous sample); the observer runs at the runner's rate with an exact
   zero-order-hold step of the frozen closed loop ``exp(Phi h)`` (compiled): the quadratic Lyapunov
@@ -173,7 +172,7 @@ _OPTIONS: dict[str, Any] = {
     "slip_max_rad": 0.14,              # design slip range for the Magic Formula sectors (seed: 8 deg)
     "mu": 1.0,                         # road friction of the Magic Formula curves
     "decay_alpha": 0.001,              # alpha of Theorem 1 (seed)
-    "state_scale": 0.1,                # LMI conditioning: x3, x4 scaled by this (digest 6.1)
+    "state_scale": 0.1,                # LMI conditioning: x3, x4 scaled by this (else the solvers are inaccurate)
     "rule_order": "corrected",         # "corrected" | "as_printed" (eq. (22) as printed)
     "lookahead_m": 0.5,                # l_s (seed; roadtruth's default)
     "differentiator_order": 2,         # Levant k (the paper's "third-order" HOSMD)
@@ -368,7 +367,7 @@ class TakagiSugenoYacine(ScalarLoopObserver):
 
 @register
 class TakagiSugenoYacineXhat(TakagiSugenoYacine):
-    """Seed-002 TS observer with unmeasured premises h_i(x_hat) (no camera in the weights)."""
+    """Yacine et al. (2015) TS observer with unmeasured premises h_i(x_hat) (no camera in the weights)."""
 
     name = "ts_yacine_xhat"
     citation = ("Z. Yacine et al., IEEE Trans. Control Syst. Technol. 23(2):754-761, 2015, "

@@ -1,8 +1,8 @@
-r"""TS model and Theorem-1 LMI design of the seed-002 observer (see :mod:`observers.takagi_sugeno`).
+r"""TS model and Theorem-1 LMI design of the Yacine et al. (2015) observer (see :mod:`observers.takagi_sugeno`).
 
 Model (seed eqs. (13), (19)-(24)), ``x = (v_y, r, (F_f + F_r)/m, (a_f F_f - a_r F_r)/I_z)``, tire
 forces in sector form ``F^S = f(alpha) alpha`` with ``f in [M_2, M_1]`` per axle, speed ``v_x`` in
-``[v_min, v_max]``: 8 rules, rule ``i = (l, j, k)`` (digest table 1.9; ``l = 0`` is ``v_max``,
+``[v_min, v_max]``: 8 rules, rule ``i = (l, j, k)`` (``l = 0`` is ``v_max``,
 ``j``/``k`` = 0 the largest stiffness), weight ``h_i = mu_vl mu_fj mu_rk`` (the CORRECTED ordering;
 the paper's eq. (22) swaps ``mu_2`` and ``mu_3``, reproduced by ``rule_order="as_printed"``).
 
@@ -14,8 +14,8 @@ Theorem 1 (eq. (33)): find ``P = P^T > 0``, ``M_i``, ``c > 0`` with, for i = 1..
     \Gamma^T P & -c I_2 \end{pmatrix} \prec 0, \qquad L_i = P^{-1} M_i,
 
 ``C = (0 1 0 0)``, ``Gamma = (e_3, e_4)``. Solved in state coordinates scaled by
-``S = diag(1, 1, s, s)`` (``s`` = ``state_scale``, digest 6.1: without it the solvers return
-``optimal_inaccurate``) with objective ``min c + 1e-3 tr P`` and ``P >= I`` (digest 6.1); the
+``S = diag(1, 1, s, s)`` (``s`` = ``state_scale``: without it the solvers return
+``optimal_inaccurate``) with objective ``min c + 1e-3 tr P`` and ``P >= I``; the
 certificate (:func:`observers.lmi.certify_design`) re-checks the block at the 8 vertices and on a
 dense grid of ``(v_x, f_f, f_r)`` where ``A`` is rebuilt from the physical formula and ``L`` is the
 trilinear blend of the vertex gains (this validates the polytope embedding itself), plus the frozen
@@ -41,10 +41,10 @@ if TYPE_CHECKING:
 
 C_OUT = np.array([[0.0, 1.0, 0.0, 0.0]])
 GAMMA = np.array([[0.0, 0.0], [0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-#: Rule table of digest 1.9: rule i -> (l, j, k) = (speed vertex, front stiffness, rear stiffness).
+#: Rule table: rule i -> (l, j, k) = (speed vertex, front stiffness, rear stiffness).
 RULES: tuple[tuple[int, int, int], ...] = tuple(itertools.product((0, 1), (0, 1), (0, 1)))
 
-#: Seed 002 Table I: sector bounds of its own car (N/rad), ``(M_f1, M_f2, M_r1, M_r2)``.
+#: Yacine et al. (2015) Table I: sector bounds of its own car (N/rad), ``(M_f1, M_f2, M_r1, M_r2)``.
 SEED_STIFFNESS_NPR: tuple[float, float, float, float] = (4.2e4, 3.3e4, 4.9e4, 3.3e4)
 
 
@@ -115,7 +115,7 @@ def secant_slope(alpha: float, B: float, C: float, E: float, D: float) -> float:
 
 
 def sector_bounds(B: float, C: float, E: float, D: float, slip_max_rad: float, n: int = 4001) -> tuple[float, float]:
-    """``(f_min, f_max)`` of :func:`secant_slope` over ``|alpha| <= slip_max_rad`` on a grid (digest 1.7)."""
+    """``(f_min, f_max)`` of :func:`secant_slope` over ``|alpha| <= slip_max_rad`` on a grid."""
     vals = [secant_slope(a, B, C, E, D) for a in np.linspace(0.0, slip_max_rad, n)]
     return float(min(vals)), float(max(vals))
 

@@ -1,8 +1,8 @@
-r"""Regularised H^1 unknown-input observer of seed 003 (Nguyen, ch. 1, Section 3 and sec. 7.2.2).
+r"""Regularised H^1 unknown-input observer (Q. H. Nguyen, thesis draft, ch. 1, Section 3 and sec. 7.2.2).
 
 Q. H. Nguyen, PhD thesis draft (Université de Lorraine, CRAN), ch. 1 "Learning with Unknown Input
 Observers for Robust Nonlinear Estimation", Section 3 (eqs. (1.5)-(1.26)) and the vehicle of
-sec. 7.2 (eqs. (1.52)-(1.61)), **with the corrections of digest 003** (``D_bar = [0, -D]``,
+sec. 7.2 (eqs. (1.52)-(1.61)), **with corrections of printed equations that do not hold** (``D_bar = [0, -D]``,
 ``E_cal = P_zeta E_bar - ...``, ``D_cal = (I - H Q_zeta) D_bar``, ``+I`` in (1.26), vertices
 ``n_x x n_zeta``). Model and LMIs: :mod:`observers.uio_nguyen_design`.
 
@@ -17,7 +17,7 @@ stays in the certified polytope). Per step the inputs are first-order held and t
 integrated by RK4 with sub-steps ``|lambda| h_sub <= 0.5`` (a compiled kernel with a plain-Python twin).
 
 Measurements: ``v_x <- vx_mps``, ``r <- yaw_rate_radps``, ``a <- ax_mps2`` (the accelerometer's
-specific force; (1.52a)'s ``r v_y`` and ``mu g`` are not in the seed's row 1, and ``v_x`` only feeds
+specific force; (1.52a)'s ``r v_y`` and ``mu g`` are not in the printed row 1, and ``v_x`` only feeds
 ``v_x``), ``delta <- delta_rad``. **Heading**: a car's ESC cluster does not measure psi, so the psi
 output is the integrated gyro ``psi_m = int r_m dt`` (trapezoid). It carries no information beyond
 ``r``: ``psi_m - psi_hat = int (r_m - r_hat) dt`` turns the psi channel into an integral action on the
@@ -40,7 +40,7 @@ States: ``vy_mps``, ``yaw_rate_radps``, ``beta_rad = atan2(v_y, v_x)``. Note tha
 regularised output ``y_r = r + delta2 f_yr - delta2 f_yr`` makes the UIO split the measured yaw rate:
 in practice ``r_hat = r_m - delta2 f_yr_hat`` (to < 1e-4 rad/s RMS on MuJoCo runs), so ``r_hat`` is
 worse than the gyro whenever the tire-force residual is large. The unknown input is not a
-canonical signal: with ``y = (v_x, psi, r)`` only its effect on ``r'`` is identifiable (digest 1.4;
+canonical signal: with ``y = (v_x, psi, r)`` only its effect on ``r'`` is identifiable (
 ``rank C B_mu = 1``, normal rank of ``C (sI - A)^-1 B_mu`` is 1), so ``mu_hat`` (per axle, N) and the
 yaw-moment residual ``l_f f_yf - l_r f_yr`` are exposed as non-scored extras
 (:meth:`NguyenUIO.unknown_input_N`), not as states. The neural adaptive observer of the same chapter
@@ -114,18 +114,19 @@ def affine_rk4(z: np.ndarray, Ms: np.ndarray, Gs: np.ndarray, w0: np.ndarray, w1
 
 @register
 class NguyenUIO(ScalarLoopObserver):
-    """Regularised H^1 unknown-input observer (seed 003, Theorem 1, corrected), LPV in (v_x, 1/v_x)."""
+    """Regularised H^1 unknown-input observer (Nguyen, Theorem 1, corrected), LPV in (v_x, 1/v_x)."""
 
     name = "uio_nguyen"
-    citation = ("Q. H. Nguyen, PhD thesis draft, Univ. de Lorraine (CRAN), ch. 1, Section 3, "
-                "eqs. (1.5)-(1.26), vehicle (1.52)-(1.61), corrected per digest 003")
+    citation = ("Q. H. Nguyen, PhD thesis draft (undated), Univ. de Lorraine (CRAN), ch. 1, Section 3, "
+                "eqs. (1.5)-(1.26), vehicle (1.52)-(1.61); signs of D_bar and D_cal, P_zeta in E_cal "
+                "and the +I of (1.26) corrected")
     inputs = ("vx_mps", "yaw_rate_radps", "ax_mps2", "delta_rad")
     states = ("vy_mps", "yaw_rate_radps", "beta_rad")
     variant = "regularized"
     default_options: Mapping[str, Any] = {
-        "delta1": 0.0,                 # state-side regularisation (1.5); 0 as in the seed's vehicle
-        "delta2": 0.1,                 # output-side regularisation; >= 0.1 needed (digest 7.2)
-        "epsilon": 0.01,               # S = epsilon P of Theorem 1; <= 0.01 needed (digest 7.2)
+        "delta1": 0.0,                 # state-side regularisation (1.5); 0 as in the chapter's vehicle
+        "delta2": 0.1,                 # output-side regularisation; below 0.1 the LMIs are infeasible
+        "epsilon": 0.01,               # S = epsilon P of Theorem 1; above 0.01 the LMIs are infeasible
         "vx_range_mps": (5.0, 30.0),   # design domain of v_x; v_x is clamped into it
         "grid_points": 101,            # v_x grid of the certificate
         "hold_s": 0.1,                 # correct only while v_x and r are younger than this [s]
@@ -266,7 +267,7 @@ class NguyenUIO(ScalarLoopObserver):
         """Current ``(f_yf, f_yr, l_f f_yf - l_r f_yr)`` estimate [N, N, N m] (non-scored extra).
 
         Per-axle values are structurally non-identifiable from ``(v_x, psi, r)`` and attenuated by
-        the regularisation (digest 7.2: regression slope ~0.06-0.16 at delta2 = 0.1).
+        the regularisation (on the chapter's protocol: regression slope ~0.06-0.16 at delta2 = 0.1).
         """
         f, rr = float(self._zeta[4]) * MU_SCALE_N, float(self._zeta[5]) * MU_SCALE_N
         return f, rr, self._lf * f - self._lr * rr

@@ -1,22 +1,22 @@
-r"""Model, regularisation and certified LMI design of the seed-003 UIO (see :mod:`observers.uio_nguyen`).
+r"""Model, regularisation and certified LMI design of Nguyen's UIO (see :mod:`observers.uio_nguyen`).
 
 Vehicle model (1.52)-(1.56), small angles, ``x = (v_x, v_y, psi, r)``, ``u = (a, delta)``,
-``y = (v_x, psi, r)``, ``mu = (f_yf, f_yr)`` in **kN** (digest 7.1: N makes ``B_mu ~ 1e-3``):
+``y = (v_x, psi, r)``, ``mu = (f_yf, f_yr)`` in **kN** (in N, ``B_mu ~ 1e-3`` and the LMIs are ill-conditioned):
 
 .. math::
 
     \dot x = A(\rho) x + B_u u + B_\mu \mu,\qquad y = C x,\qquad
     A(\rho) = A_0 + \rho_1 A_1 + \rho_2 A_2,\ \rho_1 = v_x,\ \rho_2 = 1/v_x,
 
-the seed's ``E`` renamed ``B_mu`` (digest 1.2). Regularised model (1.5)-(1.7), corrected sign of the
-``omega`` term (digest 2.1): ``E_bb = [I, delta1 E_reg]``, ``H = [C, delta2 D_reg]``,
+the chapter's ``E`` renamed ``B_mu``. Regularised model (1.5)-(1.7), corrected sign of the
+``omega`` term: ``E_bb = [I, delta1 E_reg]``, ``H = [C, delta2 D_reg]``,
 ``E_bar = [E_reg, 0]``, ``D_bar = [0, -D_reg]``, ``omega = (delta1 mu', delta2 mu)``; ``D_reg`` is
 (1.58) (``f_yf`` into the psi channel, ``f_yr`` into the r channel). ``[P_zeta Q_zeta] = pinv([E_bb; H])``
-solves (1.9). Error dynamics (1.13), corrected (digest 2.4):
+solves (1.9). Error dynamics (1.13), corrected:
 ``E_j = P_zeta E_bar - P_zeta A_j Q_zeta D_bar`` and ``D_cal = (I - H Q_zeta) D_bar``; the vertices
 ``A_j = [A(rho_j), B_mu]`` are ``n_x x n_zeta`` (1.60 corrected).
 
-Theorem 1 LMI (1.26) **with the +I the seed omits** (without it the LMI is homogeneous and lambda -> 0):
+Theorem 1 LMI (1.26) **with the +I the printed LMI omits** (without it the LMI is homogeneous and lambda -> 0):
 
 .. math::
 
@@ -132,7 +132,7 @@ def d_cal(H: np.ndarray, Q_zeta: np.ndarray, D_bar: np.ndarray, *, printed: bool
 
 
 def rank_condition(delta1: float, delta2: float) -> int:
-    """``rank [E_bb; H] - n_x = rank(delta2 D - delta1 C E_reg)`` (digest 2.1); (1.4) needs 2."""
+    """``rank [E_bb; H] - n_x = rank(delta2 D - delta1 C E_reg)``; (1.4) needs 2."""
     return int(np.linalg.matrix_rank(delta2 * D_REG - delta1 * C_OUT @ E_REG))
 
 
@@ -162,7 +162,7 @@ def unmovable_modes(F: np.ndarray, H: np.ndarray, tol: float = 1e-7) -> np.ndarr
 
 
 def structure(model: VehicleModel, vx: float) -> dict[str, float]:
-    """Identifiability facts at ``v_x`` (digest 1.4): ``rank C B_mu`` (1: (1.2) fails), the normal rank
+    """Identifiability facts at ``v_x``: ``rank C B_mu`` (1: (1.2) fails), the normal rank
     of ``G(s) = C (sI - A)^-1 B_mu`` (1: only one combination of f_yf, f_yr is identifiable) and the
     observability rank of ``(A, C)`` with and without the psi row (psi only sees itself)."""
     A, C, B = model.A(vx), model.C, model.Bmu
