@@ -60,10 +60,20 @@ def shown_margins(observer: str, margins: dict[str, float]) -> str:
     return ""
 
 
+def scheduled_gains(design: Any) -> str:
+    """``L0`` and the largest entry of ``L1``, ``L2`` of a gain-scheduled design ``L0 + θ1 L1 + θ2 L2``."""
+    if not {"L0", "L1", "L2"} <= set(design.gains):
+        return ""
+    l0 = ", ".join(f"{x:.4g}" for x in design.gain("L0").ravel())
+    return (f"; L0 = ({l0}), max|L1| {abs(design.gain('L1')).max():.2g}, "
+            f"max|L2| {abs(design.gain('L2')).max():.2g}")
+
+
 def line(vehicle: str, observer: str, design: Any, note: str = "") -> str:
     gamma = "" if design.gamma is None else f"{design.gamma:.4g}"
     head = f"{vehicle:11s} {observer + note:44s} {design.status.value:10s} {gamma:>9s}  "
-    return head + shown_margins(observer, design.margins) + ("" if design.certified else f"  [{design.reason[:110]}]")
+    return (head + shown_margins(observer, design.margins) + scheduled_gains(design)
+            + ("" if design.certified else f"  [{design.reason[:110]}]"))
 
 
 def main() -> None:
