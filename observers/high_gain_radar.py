@@ -132,7 +132,12 @@ class HighGainRadarStandard(ScalarLoopObserver):
             th = float(d.gain("theta")[0])
             T = np.array([th, th ** 2, th ** 3])
             L = T * d.gain("K")
-            M = T * d.gain("N") / th ** 3 if self.uses_rate else np.zeros(3)
+            if not self.uses_rate:
+                M = np.zeros(3)
+            elif "M" in d.gains:   # Methods 1 and 2 give M in state coordinates
+                M = d.gain("M").reshape(3)
+            else:                  # Thm 4.3.4: M = T(theta) N / theta^n
+                M = T * d.gain("N") / th ** 3
             self._gains = (L, M)
         return self._gains
 
@@ -303,3 +308,68 @@ class HighGainRadarStandardPrinted(HighGainRadarStandard):
     citation = "H. Bessafa, PhD thesis, Univ. Lorraine 2024, sec. 5.2.2(a) (printed SHGO design)"
     variant = "standard_printed"
     default_options = dict(_COMMON)
+
+
+def _check_extra(obs: HighGainRadarStandard, rules: dict[str, Any]) -> None:
+    """Validate the variant's own options: ``rules`` maps an option to a predicate on its value."""
+    for key, ok in rules.items():
+        try:
+            good = bool(ok(obs.options[key]))
+        except (TypeError, ValueError):
+            good = False
+        if not good:
+            raise InputError(f"bad option {key} = {obs.options[key]!r}", field=f"observer {obs.name}")
+
+
+def _is_direction(v: Any) -> bool:
+    u = np.asarray(v, dtype=float).reshape(-1)
+    return u.shape == (3,) and bool(np.all(np.isfinite(u))) and float(np.linalg.norm(u)) > 0
+
+
+@register
+class HighGainRadarMethod1(HighGainRadarStandard):
+    """Method 1 (Thm 4.3.2): SHGO gain plus a range-rate gain M bounded in norm by (4.33)."""
+
+    name = "hgo_radar_method1"
+    citation = ("H. Bessafa, PhD thesis, Univ. Lorraine 2024, Thm 4.3.2, eqs. (4.24)-(4.33); "
+                "application sec. 5.2.2, Table 5.1")
+    variant = "method1"
+    uses_rate = True
+    # alpha of (4.27): share of lambda spent on f; (1 - alpha) bounds ||M||. The thesis gives no value.
+    # M = m1_norm_fraction * (4.33)'s bound along m1_direction (the theorem allows any direction; the
+    # lead acceleration is the state the observer exists for).
+    default_options = dict(_COMMON, m1_alpha=0.5, m1_norm_fraction=0.9, m1_direction=(0.0, 0.0, 1.0))
+
+    def _setup(self) -> None:
+        super()._setup()
+        _check_extra(self, {"m1_alpha": lambda v: 0.0 < float(v) < 1.0,
+                            "m1_norm_fraction": lambda v: 0.0 <= float(v) < 1.0, "m1_direction": _is_direction})
+
+
+@register
+class HighGainRadarMethod2(HighGainRadarStandard):
+    """Method 2 (Thm 4.3.3): range-rate gain from LMI (4.39) on the mean-value (DMVT) vertices of h."""
+
+    name = "hgo_radar_method2"
+    citation = ("H. Bessafa, PhD thesis, Univ. Lorraine 2024, Thm 4.3.3, eqs. (4.34)-(4.41), Lemma 4.3.1; "
+                "application sec. 5.2.2, Table 5.1")
+    variant = "method2"
+    uses_rate = True
+    # sigma of (4.39)-(4.40) (theta <= sigma); m2_lambda = None uses lambda_
+    default_options = dict(_COMMON, m2_sigma=40.0, m2_lambda=None)
+
+    def _setup(self) -> None:
+        super()._setup()
+        _check_extra(self, {"m2_sigma": lambda v: float(v) >= 1.0,
+                            "m2_lambda": lambda v: v is None or float(v) > 0.0})
+
+
+@register
+class HighGainRadarMethod2Printed(HighGainRadarMethod2):
+    """Method 2 with the design printed in sec. 5.2.2(b) (P, Y, Z, theta = 30.3704), same certification."""
+
+    name = "hgo_radar_method2_printed"
+    citation = "H. Bessafa, PhD thesis, Univ. Lorraine 2024, sec. 5.2.2(b) (printed Method 2 design)"
+    variant = "method2_printed"
+    # lambda is not printed for this design: None = the largest lambda for which (4.39) holds
+    default_options = dict(_COMMON, m2_sigma=40.0, m2_lambda=None)
