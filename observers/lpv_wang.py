@@ -41,9 +41,24 @@ _COMMON: dict[str, Any] = {
     "ax_range_mps2": (-8.0, 8.0),
     "hold_s": 0.1,             # correct only while delta, r, v_x are younger than this [s]
     "vx_min_output_mps": 1.0,  # floor of v_x in the pseudo-output and derived v_y
+    # (eps1, eps2): schedule on v_m = (1 + eps1) v_x and a_m = (1 + eps2) a_x, the multiplicative
+    # scheduling errors of (3.68)-(3.70); y keeps the measured v_x, as in the error model (3.34).
+    "scheduling_error": (0.0, 0.0),
     "use_cache": True,
 }
 
+
+
+def scheduling_error(value: Any, field: str) -> tuple[float, float]:
+    """Validate the ``scheduling_error`` option: two finite factors in (-1, 1)."""
+    from harness.errors import InputError
+    try:
+        e1, e2 = (float(x) for x in value)
+    except (TypeError, ValueError):
+        raise InputError(f"scheduling_error must be a pair (eps1, eps2), got {value!r}", field=field) from None
+    if not (-1.0 < e1 < 1.0 and -1.0 < e2 < 1.0):
+        raise InputError(f"scheduling_error factors must lie in (-1, 1), got {value!r}", field=field)
+    return e1, e2
 
 
 @register
@@ -70,6 +85,7 @@ class LPVWang(ScalarLoopObserver):
                              field=f"observer {self.name}")
         self._hold = float(self.options["hold_s"])
         self._vmin = float(self.options["vx_min_output_mps"])
+        self._eps1, self._eps2 = scheduling_error(self.options["scheduling_error"], f"observer {self.name}")
         self._L: tuple[float, ...] | None = None
 
     def _compute_design(self) -> DesignResult:
@@ -102,8 +118,7 @@ class LPVWang(ScalarLoopObserver):
             return
         l0a, l0b, l1a, l1b, l2a, l2b = self._L if self._L is not None else self.gains()
         A = self._A1
-        vc = self._vlo if vx < self._vlo else (self._vhi if vx > self._vhi else vx)
-        ac = self._alo if ax < self._alo else (self._ahi if ax > self._ahi else ax)
+        vc, ac = self._scheduling(vx, ax)
         th1 = 1.0 / vc
         th2 = ac * th1
         a11, a12, a21, a22 = th1 * A[0] - th2, th1 * A[1], th1 * A[2], th1 * A[3] - th2
@@ -123,6 +138,15 @@ class LPVWang(ScalarLoopObserver):
         E, G = expm2_zoh(a11, a12, a21, a22, h)
         z0, z1 = z
         self._z = [E[0] * z0 + E[1] * z1 + G[0] * g1 + G[1] * g2, E[2] * z0 + E[3] * z1 + G[2] * g1 + G[3] * g2]
+
+    def _scheduling(self, vx: float, ax: float) -> tuple[float, float]:
+        """Scheduling ``(v_m, a_m)`` [m/s, m/s^2]: the measured values times ``(1 + eps)``, clamped
+        into the design domain (the polytope's guarantees hold only inside it)."""
+        vx = vx * (1.0 + self._eps1)
+        ax = ax * (1.0 + self._eps2)
+        vc = self._vlo if vx < self._vlo else (self._vhi if vx > self._vhi else vx)
+        ac = self._alo if ax < self._alo else (self._ahi if ax > self._ahi else ax)
+        return vc, ac
 
     def _values(self) -> list[float]:
         delta, r, vx, _ = self._u
