@@ -154,6 +154,21 @@ def test_pool_fails_only_the_task_whose_worker_crashed_and_replaces_the_worker()
             assert fut.result() == x * x  # type: ignore[operator]
 
 
+def test_a_crashed_sweep_case_keeps_the_columns_of_a_case_and_says_why() -> None:
+    from harness.stress import StressCase, _crashed_case, run_case
+
+    case = StressCase(index=3, scenario="step_steer", friction="0.5", faults="none", seed_index=0, seed=7,
+                      observers=(GOOD,))
+    ran = run_case(case).rows
+    crashed = _crashed_case(case, WorkerCrashed(-11))
+    assert list(crashed.rows.columns) == list(ran.columns)
+    assert crashed.rows[["observer", "state"]].equals(ran[["observer", "state"]])
+    assert (crashed.rows["status"] == "error: worker crashed (signal 11)").all()
+    assert (crashed.rows["truth_status"] == "error: worker crashed (signal 11)").all()
+    assert (crashed.rows["case"] == 3).all() and (crashed.rows["mu"] == 0.5).all()
+    assert crashed.traceback  # a crashed case is never stored as finished in the case cache
+
+
 # ---- command line: worker processes ---------------------------------------------------------------
 
 def _processes() -> dict[int, tuple[int, str]]:
