@@ -395,6 +395,10 @@ class _LearningObserver(Observer):
     # harness interface ------------------------------------------------------------------------
     def reset(self, t0_s: float, x0: Mapping[str, float] | None = None) -> None:
         self._t0 = t0_s
+        bad = sorted(set(x0 or {}) - set(self.states))
+        if bad:
+            raise InputError(f"cannot initialise state {bad[0]!r} (settable: {', '.join(self.states)})",
+                             field=f"observer {self.name} x0")
         self._x0 = None if not x0 else np.array([float(x0.get(s, 0.0)) for s in self.states] + [0.0])
         self._hist_t: list[float] = []
         self._hist_y: list[np.ndarray] = []
