@@ -42,6 +42,7 @@ import importlib
 import importlib.util
 import math
 import os
+import pickle
 import signal
 import subprocess
 import sys
@@ -267,9 +268,10 @@ class ObserverHost:
             self._receive(time.monotonic() + timeout_s)
             self.ready = True
 
-    def run(self, req: ObserverRequest, timeout_s: float) -> ObserverReply:
+    def run(self, payload: bytes, timeout_s: float) -> ObserverReply:
+        """Send a pickled ``ObserverRequest`` and wait at most ``timeout_s`` [s] for the reply."""
         deadline = time.monotonic() + timeout_s
-        self.requests.send(req)
+        self.requests.send_bytes(payload)
         reply = self._receive(deadline)
         if not isinstance(reply, ObserverReply):
             raise HostDied(None)
@@ -350,7 +352,7 @@ if hasattr(os, "register_at_fork"):
 def isolatable(cls: type) -> bool:
     """True if ``cls`` can be imported by name (or file) in another process."""
     module = sys.modules.get(cls.__module__)
-    return (cls.__module__ != "__main__" and "<locals>" not in cls.__qualname__ and module is not None
+    return (os.name == "posix" and cls.__module__ != "__main__" and "<locals>" not in cls.__qualname__ and module is not None
             and getattr(module, "__spec__", None) is not None)
 
 
@@ -373,6 +375,10 @@ def run_isolated(cls: type, vehicle: Any, options: Mapping[str, Any], t: np.ndar
     req = request_for(cls, vehicle, options, t, Y)
     if not isolatable(cls):
         return run_request(req, in_process=True)
+    try:
+        payload = pickle.dumps(req, protocol=pickle.HIGHEST_PROTOCOL)
+    except Exception:  # noqa: BLE001 - e.g. an option holding a lambda: it cannot travel, run it here
+        return run_request(req, in_process=True)
     for attempt in (1, 2):
         host = _acquire()
         try:
@@ -385,7 +391,7 @@ def run_isolated(cls: type, vehicle: Any, options: Mapping[str, Any], t: np.ndar
                 host.kill()
                 return ObserverReply.failed(f"observer process did not start within {STARTUP_TIMEOUT_S:g} s")
             try:
-                reply = host.run(req, timeout_s)
+                reply = host.run(payload, timeout_s)
             except (BrokenPipeError, ConnectionResetError):
                 host.kill()  # the host was gone before it took the request: not this observer's doing
                 if attempt == 1:
