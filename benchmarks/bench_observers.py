@@ -1,6 +1,6 @@
 """Microseconds per step of every registered observer, and the cold design time of each LMI design.
 
-Run: ``/work/venv/bin/python benchmarks/bench_observers.py [--vehicle sedan] [--seconds 60]``.
+Run: ``.venv/bin/python benchmarks/bench_observers.py [--vehicle sedan] [--seconds 60]``.
 Inputs: a 60 s, 100 Hz lateral manoeuvre of the linear bicycle model (no MuJoCo needed).
 """
 

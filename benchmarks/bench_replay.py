@@ -4,7 +4,7 @@ Replays ``shared/data/revs-250lm`` (55,001 rows, 100 Hz, INS sideslip reference)
 ``harness.replay.replay`` with the shipped column map and vehicle, and prints a Markdown table:
 every registered observer, the signals it needs, and its β RMSE in degrees (or why it was skipped).
 
-    /work/venv/bin/python benchmarks/bench_replay.py [--out DIR]
+    .venv/bin/python benchmarks/bench_replay.py [--out DIR]
 """
 
 from __future__ import annotations
@@ -73,8 +73,17 @@ def main() -> None:
         wall = time.perf_counter() - t
         metrics = pd.read_csv(folder / "metrics.csv")
         runs = json.loads((folder / "run.json").read_text())["observer_runs"]
+        truth = pd.concat([pd.read_csv(f) for f in sorted(folder.glob("*/truth.csv"))], ignore_index=True)
     details = {k: v.get("detail") or "" for one in runs.values() for k, v in one.items()}
-    print(f"Revs Ferrari 250 LM log, {REVS_LOG.name}: replay with every observer took {wall:.1f} s\n")
+    print(f"Revs Ferrari 250 LM log, {REVS_LOG.name}: replay with every observer took {wall:.1f} s")
+    t = truth["t_s"].to_numpy(float)
+    line = f"reference: {t[-1] - t[0]:.0f} s at {1 / float(pd.Series(t).diff().median()):.0f} Hz"
+    if "beta_rad" in truth:
+        b = truth["beta_rad"].map(math.degrees)
+        line += f", beta {b.min():+.1f} ... {b.max():+.1f} deg"
+    if "ay_mps2" in truth:
+        line += f", peak |a_y| {truth['ay_mps2'].abs().max() / 9.80665:.2f} g"
+    print(line + "\n")
     print(beta_table(metrics, cmap.measured, details))
 
 

@@ -1,6 +1,6 @@
 """Cost of emulating the sensor suite: a 60 s scenario at 1 kHz with every sensor on.
 
-Run: ``/work/venv/bin/python benchmarks/bench_sensors.py``. Prints the median wall time of
+Run: ``.venv/bin/python benchmarks/bench_sensors.py``. Prints the median wall time of
 ``emulate`` per preset (with and without a stack of faults) and per sensor. Target: well under 1 s.
 """
 

@@ -1,6 +1,6 @@
 """Real-time factor of ``harness.simulate.simulate`` vs bare MuJoCo stepping of the same model.
 
-Run: ``/work/venv/bin/python benchmarks/bench_simulate.py [--seconds 30] [--repeats 3]``.
+Run: ``.venv/bin/python benchmarks/bench_simulate.py [--seconds 30] [--repeats 3]``.
 One core, 1 ms step. ``simulate`` includes tires, driver, road projection, friction map, logging of
 every canonical signal, model build and the DataFrame; the loop-only figure excludes the set-up.
 Bare stepping: the same MJCF with no tire/driver code, (a) ``mujoco.mj_step`` from a Python loop,
