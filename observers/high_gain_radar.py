@@ -2,7 +2,9 @@ r"""Radar relative longitudinal high-gain observers (H. Bessafa, PhD thesis 2024
 
 H. Bessafa, "Advanced Estimation Algorithms for Connected and Autonomous Vehicle Applications", PhD
 thesis, Université de Lorraine (CRAN), 2024, HAL tel-04744305: Thm 4.3.1 (standard HGO, SHGO),
-Thm 4.3.4 (generalized multi-output HGO), applied in sec. 5.2 (radar longitudinal tracking).
+Thm 4.3.2 (Method 1: range-rate gain of bounded norm), Thm 4.3.3 (Method 2: range-rate gain from the
+mean-value vertices of h), Thm 4.3.4 (generalized multi-output HGO), applied in sec. 5.2 (radar
+longitudinal tracking). The dynamic-extension observer of Thm 4.4.1 is in :mod:`observers.high_gain_methods`.
 
 Model (M7d: (1.35) for the lead, written relative to the ego car, (5.1)-(5.3)). State
 ``x = (d, d', a_L)``: range [m], range rate [m/s], lead acceleration [m/s^2]; ego speed ``v_E`` and
@@ -16,6 +18,8 @@ acceleration ``a_E`` are known inputs, lead speed ``v_L = d' + v_E``:
 (the known ``-e_2 a_E`` cancels in the error dynamics). Observer (4.45)-(4.46):
 ``x_hat' = A x_hat + B f(x_hat) - e_2 a_E + T(theta) K (y - C x_hat) + T(theta) N / theta^3 (z - x_hat_2)``
 with ``T(theta) = diag(theta, theta^2, theta^3)``; the SHGO (4.15)-(4.16) is the same with ``N = 0``.
+Methods 1 and 2 (4.24) inject ``M (z - x_hat_2)`` with ``M`` given by their designs in state
+coordinates: Method 1 ``||M||`` bounded by (4.33), Method 2 ``M = T(theta) P^-1 Z^T`` (corrected).
 Gains and certificate: :mod:`observers.high_gain_radar_design` (LMIs (4.20), (4.57), conditions
 (4.21), (4.58); decay rate ``kappa`` of (4.60)).
 

@@ -1,9 +1,12 @@
-"""Radar high-gain observers of seed 000 (Bessafa 2024, Thm 4.3.1 / Thm 4.3.4, sec. 5.2).
+"""Radar high-gain observers of Bessafa (2024): Thms 4.3.1-4.3.4 and 4.4.1 on the radar model of sec. 5.2.
 
-On the seed's own relative longitudinal model (M7d, no noise): the Lyapunov function decays at the
-certified rate, the multi-output observer keeps range rate and lead acceleration when the range is
-lost while the standard HGO's range error grows without bound; the designs certify; the printed
-SHGO gains reproduce; the printed Method-2 design fails condition (4.40) with lambda = 1.
+On the thesis's own relative longitudinal model (M7d): the Lyapunov function of every variant decays
+at its certified rate; the dynamic extension meets its ISS bound with bounded range noise; the drag
+coupling of the lead model is exact; the multi-output observer keeps range rate and lead acceleration
+when the range is lost while the standard HGO's range error grows without bound; the designs certify;
+the printed SHGO gains reproduce; the printed Method-2 design fails (4.40) with lambda = 1 and
+certifies at its largest feasible lambda (72.36); Table 5.1's ordering on S5a as far as it holds.
+On MuJoCo car_following: metrics rows for all seven variants.
 """
 
 from __future__ import annotations
@@ -335,7 +338,7 @@ def test_printed_method2_certifies_with_its_largest_lambda() -> None:
     assert d.margins["m_norm"] == pytest.approx(1817.2, abs=0.5)
     assert d.margins["m_norm_as_printed_formula"] == pytest.approx(0.1321, abs=1e-4)
     lam1 = create("hgo_radar_method2_printed", SEDAN, m2_lambda=1.0, use_cache=False).design()
-    assert lam1.status is DesignStatus.REJECTED and lam1.margins["theta0"] > 1400
+    assert lam1.status is DesignStatus.REJECTED and lam1.margins["theta0"] == pytest.approx(1528, abs=1)
 
 
 @pytest.mark.parametrize("name", ["hgo_radar_method1", "hgo_radar_method2", "hgo_radar_method2_printed"])
