@@ -155,17 +155,18 @@ class HighGainRadarExtension(HighGainRadarStandard):
         v = lo_v if v < lo_v else (hi_v if v > hi_v else v)
         a = lo_a if x3 < lo_a else (hi_a if x3 > hi_a else x3)
         km, dm, itau = self._fpar
-        g = [0.0, 0.0, -ae, -2.0 * km * v * a - (a + km * v * v + dm) * itau]
-        r = [0.0, 0.0, -se, 0.0]
+        # inputs u0 + u1 s over the step: mu' terms (row 0), -a_E (row 2), f held (row 3)
+        g0, g2, g3 = 0.0, -ae, -2.0 * km * v * a - (a + km * v * v + dm) * itau
+        r0, r2 = 0.0, -se
         if use_y:
-            g[0] += alpha * y0
-            r[0] += alpha * sy
+            g0 += alpha * y0
+            r0 += alpha * sy
         if use_z:
-            g[0] += b2 * z0
-            r[0] += b2 * sz
-        s = (nu, x1, x2, x3)
-        new = [sum(Phi[4 * i + j] * s[j] + Gam[4 * i + j] * g[j] + Gam1[4 * i + j] * r[j] for j in range(4))
-               for i in range(4)]
+            g0 += b2 * z0
+            r0 += b2 * sz
+        new = [Phi[k] * nu + Phi[k + 1] * x1 + Phi[k + 2] * x2 + Phi[k + 3] * x3
+               + Gam[k] * g0 + Gam[k + 2] * g2 + Gam[k + 3] * g3 + Gam1[k] * r0 + Gam1[k + 2] * r2
+               for k in (0, 4, 8, 12)]
         if all(q - q == 0.0 for q in new):
             self._z = new
         else:  # cannot happen with a certified design and finite inputs; stay finite
