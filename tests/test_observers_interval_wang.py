@@ -239,3 +239,82 @@ def test_mujoco_double_lane_change_runs_with_finite_coverage() -> None:
     rows = m[(m["observer"] == "interval_wang") & m["state"].isin(["alpha_f_rad", "alpha_r_rad"])]
     assert len(rows) == 2 and np.all((rows["coverage"] >= 0) & (rows["coverage"] <= 1))
     assert np.all(np.isfinite(rows[["rmse", "mean_width"]].to_numpy()))
+
+
+def _independent_copy(vehicle, L, t, Y, s0, box=None, upper=True):
+    """One copy of Theorem 4's observer in alpha coordinates, written independently of the
+    observer: held inputs, alpha_f jumping with the held steering (the integral of delta'), SciPy
+    ``solve_ivp`` between samples, ``w`` from Lemma 12 as ``max``/``min`` over the box corners."""
+    from scipy.integrate import solve_ivp
+    A1, bf0 = slip_model_terms(vehicle)
+    ell = vehicle.lf_m + vehicle.lr_m
+    C = np.array([1.0, -1.0])
+    out = np.zeros((len(t), 2))
+    s = np.array(s0, dtype=float)
+    out[0] = s
+    for k in range(1, len(t)):
+        d, r, v, a = Y[k]
+        s = s + np.array([d - Y[k - 1, 0], 0.0])
+        e1 = 1.0 / v
+        e2 = np.clip(a, -8.0, 8.0) * e1
+        Lk = L[0] + e1 * L[1] + e2 * L[2]
+        yv = d - ell * r / v
+
+        def f(_, x, e1=e1, e2=e2, Lk=Lk, yv=yv, r=r, d=d):
+            dx = (e1 * A1 - e2 * np.eye(2)) @ x + np.array([e2 * d + r, r]) + Lk * (yv - C @ x)
+            if box is not None:
+                T = e1 * bf0 * x[None, :]  # T(x) = eta1 Bf0 diag(x)
+                cand = np.stack([T * box[0][None, :], T * box[1][None, :]])
+                dx = dx + (cand.max(axis=0) if upper else cand.min(axis=0)).sum(axis=1)
+            return dx
+
+        s = solve_ivp(f, (t[k - 1], t[k]), s, rtol=1e-12, atol=1e-14, method="DOP853").y[:, -1]
+        out[k] = s
+    return out
+
+
+def test_printed_gain_with_a_zero_width_box_is_exactly_its_closed_loop() -> None:
+    """With the stiffness box collapsed to the nominal (w = 0, no drift inflation) each copy of
+    ``interval_wang_printed`` is the Luenberger loop x' = A x + B u + L(eta)(y - C x) with the
+    printed L(eta) = (1.71, 1.34) + eta1 (-58.6, -43.0) + eta2 (-0.56, -0.44); it must equal an
+    independent simulation of that loop to 1e-9 rad (a wrong sign of the scheduled L1 term moves
+    it by ~1e-2 rad, which the certified designs, with L1 ~ 1e-9, cannot reveal)."""
+    v = load_vehicle("wang2014")
+    t, Y, _, _, _, _ = _own_model(v, lambda t: np.array([76_500.0]), lambda t: np.array([51_000.0]), T=3.0)
+    obs = create("interval_wang_printed", v, stiffness_uncertainty=0.0, alpha_bound_rad=0.05)
+    L = [obs.design().gain(k).reshape(2) for k in ("L0", "L1", "L2")]
+    assert L[1][0] == pytest.approx(-58.5902) and L[1][1] == pytest.approx(-42.9510)
+    tr = obs.run(t, Y[0], x0={"alpha_f_rad": 0.01, "alpha_r_rad": -0.02})
+    for hi, s0 in ((True, (0.06, 0.03)), (False, (-0.04, -0.07))):
+        ref = _independent_copy(v, L, t, Y[0], s0)
+        got = tr.hi[:, :2] if hi else tr.lo[:, :2]
+        np.testing.assert_allclose(got, ref, atol=1e-9, rtol=0)
+
+
+def test_one_step_bounds_contain_the_continuous_time_bounds() -> None:
+    """Theorem 4 in continuous time: the copies obey x+' = A_L x+ + B u + L y + w+(x+) with w+
+    evaluated along the path. The discrete observer evaluates w at the start of each step and adds
+    the rigorous drift bound Lambda D; so over every step its upper bound is >= the continuous one
+    and its lower bound <= (Metzler A_L, nonnegative E and G). A wide box, low speed and a 50 ms
+    step from a tight bracket that the inputs push away make w grow within the step: without the
+    drift term the discrete bounds fall inside the continuous ones."""
+    v = load_vehicle("sedan")
+    obs = create("interval_wang", v, stiffness_uncertainty=0.5, alpha_bound_rad=0.002)
+    assert obs.design().certified, obs.design().reason
+    L = [obs.design().gain(k).reshape(2) for k in ("L0", "L1", "L2")]
+    cf0, cr0 = v.cornering_stiffness_f_Npr, v.cornering_stiffness_r_Npr
+    box = (np.array([obs.cf_range[0] - cf0, obs.cr_range[0] - cr0]), np.array([obs.cf_range[1] - cf0, obs.cr_range[1] - cr0]))
+    h = 0.05
+    worst_gap = np.inf
+    rng = np.random.default_rng(5)
+    for _ in range(6):
+        d, r, vx, ax = rng.uniform(-0.05, 0.05), rng.uniform(-0.3, 0.3), rng.uniform(4.5, 8.0), rng.uniform(-8, 8)
+        Y = np.array([[d, r, vx, ax]] * 2)
+        t = np.array([0.0, h])
+        x0 = {"alpha_f_rad": 0.0, "alpha_r_rad": 0.0}  # a tight bracket that the inputs push away
+        tr = obs.run(t, Y, x0=x0)
+        up = _independent_copy(v, L, t, Y, tr.hi[0, :2], box, upper=True)
+        lo = _independent_copy(v, L, t, Y, tr.lo[0, :2], box, upper=False)
+        assert np.all(tr.hi[1, :2] >= up[1] - 1e-12) and np.all(tr.lo[1, :2] <= lo[1] + 1e-12)
+        worst_gap = min(worst_gap, float(np.min(tr.hi[1, :2] - up[1])), float(np.min(lo[1] - tr.lo[1, :2])))
+    assert worst_gap >= -1e-12
