@@ -471,3 +471,23 @@ def test_table_51_ordering_on_s5a() -> None:
     assert m1 > 1.5 * shgo                            # reversed: Method 1 is worse with noise
     assert clean["hgo_radar_method1"][1] < 0.7 * clean["hgo_radar_standard"][1]   # ordering, no noise, t >= 5
     assert clean["hgo_radar_method2"][1] < clean["hgo_radar_standard"][1]
+
+
+def test_multi_output_iss_bound_with_bounded_range_noise() -> None:
+    """Thm 4.3.4 (4.57)-(4.60): with |w| <= wbar on the range, V = eps^T P eps obeys
+    V(t) <= V(0) e^(-kappa t) + X wbar^2 / (theta kappa) (Young's step of the proof), and the noise is
+    really felt: the late V sits well above the noise-free one."""
+    t, X, Y = seed_truth(3.0, h=0.002, sub=4)
+    d = create("hgo_radar_multi", SEDAN).design()
+    th, P, kappa, Xn = d.margins["theta"], np.array(d.P), d.margins["kappa_per_s"], d.margins["x_max_eig"]
+    late = {}
+    for wbar in (0.0, 1e-3):
+        Yn = Y.copy()
+        Yn[:, 0] += np.random.default_rng(7).uniform(-wbar, wbar, len(t))
+        eps = (X - track("hgo_radar_multi", t, Yn, X0_WRONG)) / np.array([th, th ** 2, th ** 3])
+        V = np.einsum("ij,jk,ik->i", eps, P, eps)
+        bound = V[0] * np.exp(-kappa * t) + Xn * wbar ** 2 / (th * kappa)
+        keep = t <= 1.5 if wbar == 0.0 else t >= 0.0
+        assert np.all(V[keep] <= bound[keep]), wbar
+        late[wbar] = V[t >= 2.0].max()
+    assert late[1e-3] > 100 * late[0.0]
