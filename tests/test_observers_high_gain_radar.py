@@ -491,3 +491,22 @@ def test_multi_output_iss_bound_with_bounded_range_noise() -> None:
         assert np.all(V[keep] <= bound[keep]), wbar
         late[wbar] = V[t >= 2.0].max()
     assert late[1e-3] > 100 * late[0.0]
+
+
+def test_range_dropout_method2_keeps_rate_and_accel_method1_drifts() -> None:
+    """Range lost from the start (Fig 5.9): Method 2's range-rate gain keeps range rate and a_L (the
+    range freezes at its initial error); Method 1's M, bounded by (4.33) to ~6e-4, cannot: it drifts
+    like the SHGO. The dynamic extension sees the range rate only through beta^2 = 4.5e-7 in mu':
+    its range-rate error shrinks, slowly."""
+    t, X, Y = seed_truth(10.0)
+    Y = Y.copy()
+    Y[:, 0] = np.nan
+    i5, i10 = int(np.searchsorted(t, 5.0)), len(t) - 1
+    for name in ("hgo_radar_method2", "hgo_radar_method2_printed"):
+        e = X - track(name, t, Y, X0_WRONG)
+        assert np.abs(e[i5:, 1]).max() < 1e-4 and np.abs(e[i5:, 2]).max() < 1e-4, name
+        assert abs(e[i10, 0] - e[i5, 0]) < 1e-3 and abs(e[i10, 0] + 1.0) < 2e-3   # x_hat(0) range off by 1 m
+    e1 = X - track("hgo_radar_method1", t, Y, X0_WRONG)
+    assert abs(e1[i10, 1]) > 0.5 and abs(e1[i10, 0]) - abs(e1[i5, 0]) > 3.0
+    ex = X - extension_track(t, Y, X0_WRONG)[0]
+    assert 0.1 < abs(ex[i5, 1]) < 0.5 and abs(ex[i10, 1]) < 0.4 * abs(ex[i5, 1])
