@@ -69,9 +69,12 @@ def s5a() -> None:
           "range noise N(0, 6.2e-4 m) (from the printed\nequal position errors, 4.975e-4 = sigma sqrt(2/pi)), "
           "range rate exact (model (4.44)); noise seed 0.")
     t, X, Y = seed_truth(30.0, h=0.002, sub=1, x0=(30.0, 2.0, 0.0), force_N=s5a_force_N)
-    for label, sig in (("range noise 6.2e-4 m", 6.2e-4), ("no noise", 0.0)):
+    settings = (("range noise 6.2e-4 m", 6.2e-4, 0.0), ("no noise", 0.0, 0.0),
+                ("range noise 6.2e-4 m and range-rate noise 6.2e-4 m/s (sensitivity)", 6.2e-4, 6.2e-4))
+    for label, sig, sig_z in settings:
         Yn = Y.copy()
         Yn[:, 0] += np.random.default_rng(0).normal(0.0, sig, len(t))
+        Yn[:, 1] += np.random.default_rng(1).normal(0.0, sig_z, len(t))
         print(f"\n{label}: mean |error| over the run (t >= 5 s in brackets); Table 5.1 printed")
         print(f"{'':28s}{'range [m]':>22s}{'range rate [m/s]':>24s}{'a_L [m/s^2]':>22s}{'printed a_L':>13s}")
         for name in OBSERVERS:
