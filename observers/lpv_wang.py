@@ -22,7 +22,8 @@ Derived outputs. From the CONTRACT definitions ``tan(delta - alpha_f) = (v_y + l
 Variants: ``lpv_wang`` (nominal 4-vertex design (3.27) **with a decay rate sigma**, since L = 0
 already satisfies the bare feasibility LMI), ``lpv_wang_hinf`` (robust H-infinity (3.43) on the
 16 vertices of Lemma 10), and the dissertation's printed gains ``lpv_wang_printed`` /
-``lpv_wang_hinf_printed``, which go through the same certification. Design code: ``lpv_wang_design``.
+``lpv_wang_hinf_printed``, which go through the same certification. Design code: ``lpv_wang_design``. The robust H2 and
+unstructured observers of sec. 3.2.3 are in :mod:`observers.lpv_wang_robust`.
 """
 
 from __future__ import annotations
