@@ -164,6 +164,9 @@ def _check_fault_targets(faults: Sequence[FaultSpec], sensors: Mapping[str, Sens
             raise SensorConfigError(f"sensor {fault.sensor!r} is disabled in this suite; enable it to fault it",
                                     source=source, field=fault.label())
         cols = SENSORS[fault.sensor].COLUMNS
+        groups = [g for g, chans in SENSORS[fault.sensor].ERROR_GROUPS.items() if set(chans) <= set(cols)]
+        if fault.kind == "channel_dropout" and fault.channel in groups:
+            continue
         if fault.channel is not None and fault.channel not in cols:
             raise SensorConfigError(f"sensor {fault.sensor!r} has no channel {fault.channel!r} (channels: "
                                     f"{', '.join(cols)})", source=source, field=fault.label())

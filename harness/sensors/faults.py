@@ -49,6 +49,9 @@ FAULT_KINDS: dict[str, FaultKind] = {
     "burst": FaultKind("availability", {"p_enter": (REQUIRED, 0.0, 1.0), "mean_len": (5.0, 1.0, 1e9),
                                         "loss_good": (0.0, 0.0, 1.0), "loss_bad": (1.0, 0.0, 1.0)},
                        "p_enter", False),
+    # Removes only the named channel (or group of channels, e.g. gnss.position) from a sample; the
+    # sample itself still arrives (the receiver keeps reporting velocity without a position fix).
+    "channel_dropout": FaultKind("partial", {"p": (REQUIRED, 0.0, 1.0)}, "p", True),
     "outage": FaultKind("availability", {"t_start_s": (REQUIRED, 0.0, INF), "t_end_s": (REQUIRED, 0.0, INF)},
                         None, False),
     "bias_step": FaultKind("value", {"size": (REQUIRED, -INF, INF), **WINDOW}, "size", True),
@@ -82,6 +85,9 @@ def make_fault(sensor: str, kind: str, params: Mapping[str, Any], channel: str |
         raise SensorConfigError(f"unknown fault {kind!r} (known: {', '.join(FAULT_KINDS)})",
                                 source=source, field=field_name)
     fk = FAULT_KINDS[kind]
+    if channel is None and fk.scope == "partial":
+        raise SensorConfigError(f"fault {kind!r} needs a channel (SENSOR.CHANNEL:{kind}=P)",
+                                source=source, field=field_name)
     if channel is not None and not fk.per_channel:
         raise SensorConfigError(f"fault {kind!r} acts on whole samples; it takes no channel (got {channel!r})",
                                 source=source, field=field_name)

@@ -96,6 +96,7 @@ def _emulate_sensor(cfg: SensorConfig, ctx: SampleContext, seed: int, outages: S
     values = mod.derive(raw, cfg.params, ctx)
     n = ctx.t_s.size
     lost = np.zeros(n, dtype=bool)
+    blanked: list[tuple[tuple[str, ...], np.ndarray]] = []  # partial faults: (channels, mask)
     delay = np.zeros(n)
     ordinal: Counter[str] = Counter()
     for fault in cfg.faults:
@@ -106,12 +107,19 @@ def _emulate_sensor(cfg: SensorConfig, ctx: SampleContext, seed: int, outages: S
             apply_value_fault(fault, values, ctx.t_s, rng)
         elif scope == "availability":
             lost |= availability_loss(fault, ctx.t_s, rng)
+        elif scope == "partial":
+            group = mod.ERROR_GROUPS.get(fault.channel or "", ())
+            chans = tuple(c for c in group if c in mod.COLUMNS) or (str(fault.channel),)
+            blanked.append((chans, rng.random(n) < fault.params["p"]))
         else:
             delay += extra_delay(fault, ctx.t_s, rng)
     for outage in outages:
         if outage.sensor in (cfg.name, "all"):
             lost |= _outage_mask(outage, ctx)
     finite = np.logical_and.reduce([np.isfinite(values[c]) for c in mod.COLUMNS])
+    for chans, mask in blanked:  # after the all-or-nothing check: the sample still arrives
+        for c in chans:
+            values[c] = np.where(mask, np.nan, values[c])
     arrival = np.ceil((ctx.t_s + cfg.latency_s + delay - t0) * base_hz - _ROW_EPS).astype(np.int64)
     keep = np.flatnonzero(finite & ~lost & (arrival < n_base))
     rows = arrival[keep]
