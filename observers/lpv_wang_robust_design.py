@@ -139,6 +139,8 @@ def _performance(kind: str, P: Any, PAe: Any, PBe: Any, perf: Any, eps: float) -
         blk = cp.bmat([[PAe + PAe.T, PBe, I2], [PBe.T, -perf * np.eye(5), np.zeros((5, 2))],
                        [I2, np.zeros((2, 5)), -perf * I2]])
         return [sym(blk) << -eps * np.eye(9)]
+    if kind == "h2_as_printed":  # (3.41)/(3.52) exactly as printed (no output term)
+        return [sym(cp.bmat([[PAe + PAe.T, PBe], [PBe.T, -perf * np.eye(5)]])) << -eps * np.eye(7)]
     return [sym(PAe + PAe.T + I2) << -eps * I2, sym(cp.bmat([[perf, PBe.T], [PBe, P]])) >> eps * np.eye(7)]
 
 
@@ -149,9 +151,13 @@ def _problem(kind: str, structure: str, A1: np.ndarray, verts: np.ndarray, setti
 
     eps = settings.strictness
     P = cp.Variable((2, 2), symmetric=True)
-    perf = cp.Variable() if kind == "hinf" else cp.Variable((5, 5), symmetric=True)
-    size = perf if kind == "hinf" else cp.trace(perf)
+    scalar = kind in ("hinf", "h2_as_printed")
+    perf = cp.Variable() if scalar else cp.Variable((5, 5), symmetric=True)
+    size = perf if scalar else cp.trace(perf)
     cons: list[Any] = [P >> eps * I2]
+    if kind == "h2_as_printed":  # trace Z < gamma, [[P, I], [I, Z]] > 0
+        Z2 = cp.Variable((2, 2), symmetric=True)
+        cons += [cp.trace(Z2) <= perf, sym(cp.bmat([[P, I2], [I2, Z2]])) >> eps * np.eye(4)]
     dec: dict[str, Any] = {}
     if fixed is None and structure == "luenberger":
         dec = {f"Q{i}": cp.Variable((2, 1)) for i in range(3)}
@@ -325,6 +331,15 @@ def design(variant: str, A1: np.ndarray, opts: dict[str, Any], settings: SolverS
                             f"frozen error dynamics A_e: {frozen.reason}; the observer's own A_o has max Re eig "
                             f"{extra['observer_max_real_eig']:.4g}", shown, None, {**frozen.margins, **extra}, None,
                             stats, variant)
+    if kind == "h2":
+        # The printed (3.41)/(3.52) value, for comparison with the dissertation only (it bounds no
+        # defined norm): for these gains and, for a fresh design, its optimum over the gains.
+        pr = solve_lmi(lambda: _problem("h2_as_printed", structure, A1, verts, settings, fixed=g, cap=None), settings)
+        extra["gamma_as_printed_lmi"] = float(pr.values["perf"][0]) if pr.status == "optimal" else float("nan")
+        if not variant.endswith("_printed"):
+            po = solve_lmi(lambda: _problem("h2_as_printed", structure, A1, verts, settings, fixed=None, cap=None),
+                           settings)
+            extra["gamma_as_printed_lmi_optimum"] = float(po.values["perf"][0]) if po.status == "optimal" else float("nan")
     P = ev.values["P"]
     cert, perf, P = _certify(kind, A1, g, P, ev.values["perf"], verts, grid, settings)
     gamma = _gamma(kind, perf)
