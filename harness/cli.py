@@ -214,7 +214,7 @@ def _cmd_replay(a: argparse.Namespace) -> int:
     from harness.replay import replay
 
     out = replay(Path(a.log), vehicle=a.vehicle, columns=a.columns, observers=a.observer, out=Path(a.out),
-                 observer_timeout_s=a.observer_timeout)
+                 observer_timeout_s=a.observer_timeout, rate_hz=a.rate_hz)
     print(f"report: {out / 'index.html'}")
     return EXIT_OK
 
@@ -306,9 +306,12 @@ def build_parser() -> argparse.ArgumentParser:
     st.set_defaults(func=_cmd_stress)
 
     rl = sub.add_parser("replay", help="run observers on a recorded log and score them")
-    rl.add_argument("log", help="CSV, CSV.gz, Parquet or .mat log")
-    rl.add_argument("--vehicle", default="ferrari_250lm", help="vehicle set name or YAML path")
+    rl.add_argument("log", help="CSV, CSV.gz, Parquet, .mat, MDF4 (.mf4) or ROS 2 MCAP (.mcap or bag folder) log")
+    rl.add_argument("--vehicle", help="vehicle set name or YAML path (a full or a replay vehicle); required "
+                    "unless the column map has a 'vehicle:' key")
     rl.add_argument("--columns", help="column map YAML (log names/units -> canonical signals)")
+    rl.add_argument("--rate-hz", type=float, metavar="HZ",
+                    help="sample rate of a log without a time column (t = row / HZ)")
     rl.add_argument("--observer", type=_csv_list, help="comma-separated observers (default: all)")
     rl.add_argument("--out", default="reports/replay", help="output folder (default reports/replay)")
     rl.add_argument("--cache-dir", action=_CacheDirAction, help=_CACHE_HELP)

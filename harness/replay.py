@@ -29,6 +29,7 @@ measured from the start of the first run segment on that axis. Files keep the lo
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -40,7 +41,8 @@ import pandas as pd
 
 from harness.errors import LogError
 from harness.outdir import atomic_output_dir, check_output_dir
-from harness.replay_log import ColumnMap, apply_map, identity_map, load_column_map, read_log
+from harness.replay_checks import CheckResult, check_consistency
+from harness.replay_log import ColumnMap, apply_map, identity_map, load_column_map, read_log, resolve_vehicle
 from harness.replay_segments import RUN, Segment, segment_log, segment_measurements, segments_frame
 from harness.report.rundata import git_revision, versions, write_csv, write_json
 from harness.vehicle import VehicleParams, load_vehicle
@@ -62,6 +64,9 @@ class ReplayLog:
     frame: pd.DataFrame
     segments: tuple[Segment, ...]
     measurements: dict[int, pd.DataFrame]
+    time_origin_s: float = 0.0  # the log clock at t_s = 0 (0: files keep the log's own times)
+    checks: tuple[CheckResult, ...] = ()  # sign/unit consistency (harness/replay_checks.py)
+    notes: tuple[str, ...] = ()  # what was derived or only warned about, one line each
 
     @property
     def run_segments(self) -> tuple[Segment, ...]:
@@ -77,12 +82,32 @@ def log_name(path: Path) -> str:
     return name or path.stem
 
 
-def prepare_log(log: Path, columns: str | Path | None = None) -> ReplayLog:
-    """Read, map, check and segment a log (no observers run). Raises ``LogError`` on a bad log."""
+def prepare_log(log: Path, columns: str | Path | ColumnMap | None = None, *, vehicle: VehicleParams | None = None,
+                rate_hz: float | None = None) -> ReplayLog:
+    """Read, map, check and segment a log (no observers run). Raises ``LogError`` on a bad log.
+
+    ``vehicle`` supplies the parameters derived channels name (``steering_ratio`` …) and the wheel
+    radius of the speed check; ``rate_hz`` is the sample rate of a log without a time column.
+    A failed sign/unit check raises unless the map says ``checks: warn`` (then it is a note) or ``off``.
+    """
     log = Path(log)
-    raw = read_log(log)
-    cmap = load_column_map(columns) if columns is not None else identity_map(list(raw.columns), str(log))
-    frame = apply_map(raw, cmap, str(log))
+    cmap = load_column_map(columns) if isinstance(columns, str | Path) else columns
+    if cmap is not None and rate_hz is not None:
+        cmap = cmap.with_rate(rate_hz)
+    raw = read_log(log, cmap.log_columns() if cmap is not None else None)
+    if cmap is None:
+        cmap = identity_map(list(raw.columns), str(log), rate_hz=rate_hz)
+    frame = apply_map(raw, cmap, str(log), vehicle)
+    notes = [f"{k}: {c.note}" for k, c in cmap.channels.items() if c.note]
+    if vehicle is not None and vehicle.derived_note:
+        notes.append(vehicle.derived_note)
+    checks = tuple(check_consistency(frame, vehicle.wheel_radius_m if vehicle is not None else None)
+                   ) if cmap.checks != "off" else ()
+    failed = [c for c in checks if c.status == "fail"]
+    if failed and cmap.checks == "error":
+        raise LogError("; ".join(c.evidence for c in failed) + " (or 'checks: warn' in the column map to go on)",
+                       source=str(log))
+    notes += [f"check {c.check}: {c.evidence}" for c in checks if c.status in ("fail", "warn")]
     segs = segment_log(frame, cmap.measured, cmap.rules)
     runs = [s for s in segs if s.status == RUN]
     if not runs:
@@ -90,7 +115,8 @@ def prepare_log(log: Path, columns: str | Path | None = None) -> ReplayLog:
         raise LogError(f"no segment the observers can run on (every stretch skipped: {why})", source=str(log))
     meas = {s.index: segment_measurements(frame, s, cmap.measured) for s in runs}
     return ReplayLog(path=log, name=log_name(log), column_map=cmap, frame=frame, segments=segs,
-                     measurements=meas)
+                     measurements=meas, time_origin_s=float(frame.attrs.get("time_origin_s", 0.0)),
+                     checks=checks, notes=tuple(notes))
 
 
 def stitched_offsets(rl: ReplayLog) -> dict[int, float]:
@@ -172,12 +198,13 @@ def _description(rl: ReplayLog) -> str:
 def replay(
     log: Path,
     *,
-    vehicle: str | Path = "ferrari_250lm",
+    vehicle: str | Path | None = None,
     columns: str | Path | None = None,
     observers: list[str] | None = None,
     out: Path = Path("reports/replay"),
     progress: Progress | None = None,
     observer_timeout_s: float | None = None,
+    rate_hz: float | None = None,
 ) -> Path:
     """Run observers on a recorded log and score them against its reference channels.
 
@@ -185,8 +212,10 @@ def replay(
     ----------
     log : Path
         CSV, gzip CSV, Parquet or MATLAB .mat log.
-    vehicle : str or Path
-        Vehicle set name (``harness/vehicles``) or YAML path; the observers' model parameters.
+    vehicle : str or Path, optional
+        Vehicle set name (``harness/vehicles``) or YAML path (a full or a replay vehicle,
+        docs/VEHICLES.md); the observers' model parameters. Required unless the column map names one
+        (``vehicle:``); when both are given this one is used.
     columns : str or Path, optional
         Column map: a shipped name (``"revs_250lm"``) or a YAML path. None: the log's columns must
         already be canonical names (identity map).
@@ -199,6 +228,8 @@ def replay(
         Called with one line per step.
     observer_timeout_s : float, optional
         Wall-time budget of each observer per segment [s] (default: max(60 s, 20 × the segment's duration)).
+    rate_hz : float, optional
+        Sample rate [Hz] of a log without a time column (``t = k / rate_hz``).
 
     Returns
     -------
@@ -213,8 +244,11 @@ def replay(
     say = progress or (lambda _msg: None)
     t_wall = time.perf_counter()
     check_output_dir(out, inputs=[log, columns, vehicle])  # before any work: refusals and writability
-    veh: VehicleParams = load_vehicle(vehicle)
-    rl = prepare_log(Path(log), columns)
+    cmap = load_column_map(columns) if columns is not None else None
+    veh: VehicleParams = load_vehicle(resolve_vehicle(vehicle, cmap), replay=True)
+    rl = prepare_log(Path(log), cmap, vehicle=veh, rate_hz=rate_hz)
+    for note in rl.notes:  # derived channels and fields, warnings of the consistency checks
+        print(f"roadtruth replay: note: {note}", file=sys.stderr)
     say(f"{rl.name}: {len(rl.frame)} rows, {len(rl.run_segments)} run segment(s), "
         f"{len(rl.segments) - len(rl.run_segments)} skipped")
 
@@ -273,6 +307,9 @@ def replay(
         run_json = {
             "command": "replay",
             "log": str(Path(log).resolve()),
+            "time_origin_s": rl.time_origin_s,
+            "input_checks": [c.to_dict() for c in rl.checks],
+            "notes": list(rl.notes),
             "column_map": rl.column_map.to_dict(),
             "vehicle": veh.name,
             "vehicle_path": veh.path,

@@ -1,7 +1,8 @@
 """Recorded logs for ``replay``: read a file, map its columns to canonical signals, check plausibility.
 
-A log is a table with a time column and any number of channels, in CSV, gzip CSV, Parquet or MATLAB
-``.mat`` (v5/v7; a struct of vectors or plain vector variables). A *column map* (YAML,
+A log is a table with a time column and any number of channels, in CSV, gzip CSV, Parquet, MATLAB
+``.mat`` (v5/v7; a struct of vectors or plain vector variables), ASAM MDF4 ``.mf4`` or a ROS 2 MCAP
+bag (``harness/replay_formats.py``). A *column map* (YAML,
 ``harness/replay_maps/*.yaml``) says which log column feeds which canonical signal and in what unit::
 
     time: {column: t, scale: 1.0}                  # -> t_s
@@ -9,6 +10,10 @@ A log is a table with a time column and any number of channels, in CSV, gzip CSV
     yaw_rate_radps: {column: r, unit: deg/s}       # unit conversion to SI
     reference: [beta_rad, vy_mps, vx_mps]          # scored truth
     measured: [delta_rad, yaw_rate_radps, vx_mps]  # fed to the observers
+
+An entry may also be derived from other columns (``{expr: ...}`` or ``{derive: ...}``,
+``harness/replay_channels.py``), and the time may be a sample rate (``time: {rate_hz: 200}``) for a
+file without a time vector.
 
 Everything that can be wrong with a log (unreadable file, empty table, a mapped column missing,
 time going backwards, a unit that is off by a factor 57 or 1000) raises ``LogError`` with a one-line
@@ -19,8 +24,9 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib.resources import files
+from operator import attrgetter
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +34,16 @@ import numpy as np
 import pandas as pd
 
 from harness.errors import LogError
+from harness.replay_channels import (
+    DERIVATIONS,
+    VEHICLE_NAMES,
+    Expression,
+    ExpressionError,
+    derivation_expression,
+    evaluate,
+    evaluation_order,
+    parse_expression,
+)
 from harness.signals import CANONICAL, ESTIMABLE
 from harness.strict_yaml import Fields, load_mapping
 
@@ -90,7 +106,19 @@ _PLAUSIBLE: tuple[tuple[str, float, str], ...] = (
     ("gnss_speed_mps", 110.0, "km/h or mph instead of m/s?"),
 )
 
-LOG_SUFFIXES = (".csv", ".csv.gz", ".gz", ".txt", ".parquet", ".pq", ".mat")
+LOG_SUFFIXES = (".csv", ".csv.gz", ".gz", ".txt", ".parquet", ".pq", ".mat", ".mf4", ".mdf", ".mcap")
+
+#: Unit strings as MDF4 files write them -> the column map's unit name (``UNITS``).
+FILE_UNITS: dict[str, str] = {
+    "s": "s", "ms": "ms", "us": "us", "µs": "us", "rad": "rad", "deg": "deg", "°": "deg",
+    "rad/s": "rad/s", "deg/s": "deg/s", "°/s": "deg/s", "rpm": "rpm", "1/min": "rpm",
+    "m/s": "m/s", "km/h": "km/h", "kph": "km/h", "kmh": "km/h", "mph": "mph",
+    "m/s^2": "m/s^2", "m/s²": "m/s^2", "m/s2": "m/s^2", "g": "g", "m": "m", "N": "N", "kN": "kN",
+}
+
+#: Clock values that a 10-significant-digit CSV cannot write to a thousandth of a step are made
+#: relative to the log start (``time: {origin: auto}``): a Unix-epoch 1.7e9 s at 100 Hz needs 12 digits.
+CSV_SIGNIFICANT_DIGITS = 10
 
 #: Plausible median time step of a vehicle log [s]: 100 kHz to 1 Hz. Outside it the time column is
 #: almost surely in another unit (µs or ms read as s gives steps of 1 to 10^4 "s"; ns gives < 1e-5).
@@ -119,13 +147,28 @@ def plausible_bound(name: str) -> tuple[float, str] | None:
 
 @dataclass(frozen=True)
 class ChannelSpec:
-    """One mapped channel: canonical ``name`` <- log ``column`` as ``raw * factor * scale + offset``."""
+    """One mapped channel: canonical ``name`` <- log ``column`` (or ``expr``) as ``raw * factor * scale + offset``.
+
+    A derived channel has ``column == ""`` and an expression ``expr`` (``harness/replay_channels.py``);
+    ``note`` says where it came from (a named derivation, or derived from the handwheel automatically).
+    """
 
     name: str
     column: str
     scale: float = 1.0
     offset: float = 0.0
     unit: str = ""  # as written in the map ("" = already SI)
+    expr: str = ""
+    note: str = ""
+
+    @property
+    def expression(self) -> Expression:
+        return parse_expression(self.expr)
+
+    @property
+    def label(self) -> str:
+        """How messages name the channel's source: the column, or the expression."""
+        return repr(self.column) if self.column else f"expression {self.expr!r}"
 
     @property
     def factor(self) -> float:
@@ -142,9 +185,20 @@ class SegmentRules:
     regular_tolerance: float = 0.01  # |dt / median - 1| above this anywhere: resample the segment
 
 
+CHECK_MODES = ("error", "warn", "off")
+TIME_ORIGINS = ("auto", "start", "log")
+
+
 @dataclass(frozen=True)
 class ColumnMap:
-    """A validated column map. ``channels`` holds the time channel under ``"t_s"``."""
+    """A validated column map. ``channels`` holds the time channel under ``"t_s"`` unless the log's time is
+    a sample rate (``rate_hz``: ``t = start_s + k / rate_hz``).
+
+    ``vehicle``: the vehicle the map names (a shipped name or a path resolved against the map's folder),
+    "" when it names none. ``checks``: what a failed sign/unit consistency check does
+    (``harness/replay_checks.py``). ``origin``: ``auto`` writes time from the log start when the log's
+    own clock is too large for the CSV files, ``start`` always, ``log`` never.
+    """
 
     name: str
     source: str
@@ -152,15 +206,54 @@ class ColumnMap:
     reference: tuple[str, ...]
     measured: tuple[str, ...]
     rules: SegmentRules = field(default_factory=SegmentRules)
+    rate_hz: float | None = None
+    start_s: float = 0.0
+    origin: str = "auto"
+    vehicle: str = ""
+    checks: str = "error"
 
     def to_dict(self) -> dict[str, Any]:
-        return {
-            "name": self.name, "source": self.source,
-            "channels": {k: {"column": c.column, "scale": c.scale, "offset": c.offset, "unit": c.unit or "SI"}
-                         for k, c in self.channels.items()},
-            "reference": list(self.reference), "measured": list(self.measured),
-            "rules": self.rules.__dict__.copy(),
-        }
+        chans: dict[str, Any] = {}
+        for k, c in self.channels.items():
+            d: dict[str, Any] = {"column": c.column, "scale": c.scale, "offset": c.offset, "unit": c.unit or "SI"}
+            if c.expr:
+                d["expr"] = c.expr
+            if c.note:
+                d["note"] = c.note
+            chans[k] = d
+        out = {"name": self.name, "source": self.source, "channels": chans,
+               "reference": list(self.reference), "measured": list(self.measured),
+               "rules": self.rules.__dict__.copy(), "time_origin": self.origin, "checks": self.checks}
+        if self.rate_hz is not None:
+            out["time"] = {"rate_hz": self.rate_hz, "start_s": self.start_s}
+        if self.vehicle:
+            out["vehicle"] = self.vehicle
+        return out
+
+    @property
+    def derived(self) -> tuple[str, ...]:
+        """Keys of the derived channels, in an order in which each can be evaluated."""
+        deps = {k: c.expression.names & set(self.channels) for k, c in self.channels.items() if c.expr}
+        return tuple(evaluation_order(deps))
+
+    def log_columns(self) -> set[str]:
+        """Log columns the map reads: mapped columns, ``col()`` names and bare expression names that are
+        neither map keys nor vehicle parameters."""
+        cols = {c.column for c in self.channels.values() if c.column}
+        for c in self.channels.values():
+            if c.expr:
+                e = c.expression
+                cols |= set(e.columns) | {n for n in e.names if n not in self.channels and n not in VEHICLE_NAMES}
+        return cols
+
+    def with_rate(self, rate_hz: float) -> ColumnMap:
+        """The map with its time given as a sample rate (``--rate-hz``); refused when it maps a time column."""
+        if not (math.isfinite(rate_hz) and 0.0 < rate_hz <= 1e5):
+            raise LogError(f"--rate-hz must be in (0, 100000] Hz (got {rate_hz:g})")
+        if "t_s" in self.channels:
+            raise LogError(f"the column map maps time to column {self.channels['t_s'].column!r}: "
+                           "give either a time column or --rate-hz, not both", source=self.source)
+        return replace(self, rate_hz=float(rate_hz))
 
 
 # ---- column maps -------------------------------------------------------------------------------
@@ -177,20 +270,90 @@ def _allowed_signal(name: str) -> bool:
     return name in CANONICAL or name in MEASUREMENT_COLUMNS
 
 
-def _channel(f: Fields, key: str, signal: str) -> ChannelSpec:
-    v = f.raw(key)
-    if isinstance(v, str):  # shorthand: `vx_mps: Ux`
-        return ChannelSpec(name=signal, column=v)
-    c = f.sub(key)
+def _channel_fields(c: Fields, signal: str) -> ChannelSpec:
+    """A channel from its mapping: exactly one of ``column``, ``expr``, ``derive``, then unit/scale/offset."""
+    given = [k for k in ("column", "expr", "derive") if c.has(k)]
+    if len(given) != 1:
+        raise c.fail(given[1] if given else "column",
+                     "give exactly one of column, expr, derive" + (f" (got {', '.join(given)})" if given else ""))
+    expr, note, column = "", "", ""
+    if given[0] == "column":
+        column = c.string("column")
+    elif given[0] == "expr":
+        expr = c.string("expr")
+    else:
+        how = c.string("derive", choices=tuple(DERIVATIONS))
+        of = c.items("of", None) if c.has("of") else None
+        if of is not None and (not of or not all(isinstance(x, str) for x in of)):
+            raise c.fail("of", "must be a non-empty list of map keys or log columns")
+        cutoff = c.number("cutoff_hz", None, lo=1e-3, hi=1e4) if c.has("cutoff_hz") else None
+        if cutoff is not None and how != "derivative":
+            raise c.fail("cutoff_hz", f"only the derivative has a cut-off, not {how}")
+        expr = derivation_expression(how, of, cutoff)
+        note = f"derive: {how} ({DERIVATIONS[how][2]})"
+    if expr:
+        try:
+            e = parse_expression(expr)
+        except ExpressionError as exc:
+            raise c.fail(given[0], str(exc)) from None
+        if signal in e.names:
+            raise c.fail(given[0], f"the expression of {signal} names {signal} itself")
     unit = c.string("unit", "", choices=("", *UNITS))
-    spec = ChannelSpec(name=signal, column=c.string("column"), scale=c.number("scale", 1.0),
-                       offset=c.number("offset", 0.0), unit=unit)
+    if unit and note:
+        raise c.fail("unit", "a named derivation is already in SI: no unit")
+    spec = ChannelSpec(name=signal, column=column, scale=c.number("scale", 1.0),
+                       offset=c.number("offset", 0.0), unit=unit, expr=expr, note=note)
     c.done()
     if unit and UNITS[unit][1] != si_unit_of(signal):
         raise c.fail("unit", f"{unit!r} converts to {UNITS[unit][1]}, but {signal} is in {si_unit_of(signal)}")
     if spec.scale == 0.0:
         raise c.fail("scale", "must not be 0")
     return spec
+
+
+def _channel(f: Fields, key: str, signal: str) -> ChannelSpec:
+    v = f.raw(key)
+    if isinstance(v, str):  # shorthand: `vx_mps: Ux`
+        return ChannelSpec(name=signal, column=v)
+    return _channel_fields(f.sub(key), signal)
+
+
+def _time(f: Fields) -> tuple[ChannelSpec | None, float | None, float, str]:
+    """The ``time`` entry: (time channel or None, rate_hz or None, start_s, origin)."""
+    v = f.raw("time", None)
+    if v is None:
+        raise f.fail("time", "required field is missing: a time column ({column: t}) or a sample rate "
+                             "({rate_hz: 200})")
+    if isinstance(v, str):
+        return ChannelSpec(name="t_s", column=v), None, 0.0, "auto"
+    t = f.sub("time")
+    origin = t.string("origin", "auto", choices=TIME_ORIGINS)
+    if t.has("rate_hz"):
+        if t.has("column"):
+            raise t.fail("rate_hz", "give either a time column or rate_hz, not both")
+        rate = t.number("rate_hz", lo=1e-3, hi=1e5, lo_open=True)
+        start = t.number("start_s", 0.0)
+        t.done()
+        return None, rate, start, origin
+    rest = {k: t.data[k] for k in t.data if k != "origin"}
+    if "start_s" in rest:
+        raise t.fail("start_s", "only with rate_hz (a time column has its own start)")
+    return _channel_fields(Fields(rest, source=f.source, error=LogError, prefix="time"), "t_s"), None, 0.0, origin
+
+
+def _road_wheel_angle_from_handwheel(channels: dict[str, ChannelSpec], measured: tuple[str, ...]
+                                     ) -> tuple[dict[str, ChannelSpec], tuple[str, ...]]:
+    """Add ``delta_rad = handwheel_rad / steering ratio`` when the handwheel is measured and δ is not mapped.
+
+    Without it every observer that needs the road-wheel angle would be skipped although the log has
+    the steering; the replay prints a note saying so (``ChannelSpec.note``).
+    """
+    if "handwheel_rad" not in measured or "delta_rad" in channels:
+        return channels, measured
+    spec = ChannelSpec(name="delta_rad", column="", expr=derivation_expression("road_wheel_angle", None, None),
+                       note="derived automatically from handwheel_rad / the vehicle's steering ratio "
+                            "(map delta_rad to change it)")
+    return {**channels, "delta_rad": spec}, (*measured, "delta_rad")
 
 
 def load_column_map(name_or_path: str | Path) -> ColumnMap:
@@ -208,7 +371,12 @@ def parse_column_map(data: dict[str, Any], source: str) -> ColumnMap:
     f = Fields(data, source=source, error=LogError)
     name = f.string("name", Path(source).stem)
     f.string("description", "")
-    channels: dict[str, ChannelSpec] = {"t_s": _channel(f, "time", "t_s")}
+    time_spec, rate_hz, start_s, origin = _time(f)
+    channels: dict[str, ChannelSpec] = {"t_s": time_spec} if time_spec is not None else {}
+    vehicle = f.string("vehicle", "")
+    if vehicle.lower().endswith((".yaml", ".yml")) and not Path(vehicle).is_absolute():
+        vehicle = str(Path(source).parent / vehicle)  # a vehicle file next to the map
+    checks = f.string("checks", "error", choices=CHECK_MODES)
     reference = tuple(f.items("reference", []))
     measured = tuple(f.items("measured"))
     s = f.sub("segments", {})
@@ -220,7 +388,7 @@ def parse_column_map(data: dict[str, Any], source: str) -> ColumnMap:
     )
     s.done()
     for key in data:
-        if key in ("name", "description", "time", "reference", "measured", "segments"):
+        if key in ("name", "description", "time", "reference", "measured", "segments", "vehicle", "checks"):
             continue
         if not _allowed_signal(key):
             raise f.fail(key, "unknown map key: not a canonical signal or measurement column "
@@ -235,31 +403,59 @@ def parse_column_map(data: dict[str, Any], source: str) -> ColumnMap:
                 raise f.fail(role, f"{n!r} is listed but has no mapping ({n}: {{column: ...}})")
     if not measured:
         raise f.fail("measured", "must list at least one channel")
-    return ColumnMap(name=name, source=source, channels=channels, reference=reference, measured=measured,
-                     rules=rules)
+    channels, measured = _road_wheel_angle_from_handwheel(channels, measured)
+    cmap = ColumnMap(name=name, source=source, channels=channels, reference=reference, measured=measured,
+                     rules=rules, rate_hz=rate_hz, start_s=start_s, origin=origin, vehicle=vehicle, checks=checks)
+    try:
+        cmap.derived  # noqa: B018  (checks that the derived channels do not refer to each other in a cycle)
+    except ExpressionError as exc:
+        raise LogError(str(exc), source=source) from None
+    return cmap
 
 
-def identity_map(columns: list[str], source: str) -> ColumnMap:
-    """The map of a log whose columns are already canonical names (``t_s`` required)."""
-    if "t_s" not in columns:
-        raise LogError("no 't_s' column and no column map: give --columns MAP.yaml "
-                       f"(columns found: {', '.join(columns[:12])}{' …' if len(columns) > 12 else ''})",
-                       source=source)
-    chans = {c: ChannelSpec(c, c) for c in columns if c == "t_s" or _allowed_signal(c)}
+def identity_map(columns: list[str], source: str, rate_hz: float | None = None) -> ColumnMap:
+    """The map of a log whose columns are already canonical names (``t_s`` required unless ``rate_hz``)."""
+    if "t_s" not in columns and rate_hz is None:
+        raise LogError("no 't_s' column and no column map: give --columns MAP.yaml, or --rate-hz for a log "
+                       f"without a time column (columns found: {', '.join(columns[:12])}"
+                       f"{' …' if len(columns) > 12 else ''})", source=source)
+    chans = {c: ChannelSpec(c, c) for c in columns if (c == "t_s" and rate_hz is None) or _allowed_signal(c)}
     measured = tuple(c for c in MEASUREMENT_COLUMNS if c in chans)
     reference = tuple(c for c in DEFAULT_REFERENCE if c in chans)
     if not measured:
         raise LogError("no column is a measurement name (e.g. yaw_rate_radps, delta_rad, vx_mps); "
                        "give --columns MAP.yaml", source=source)
+    chans, measured = _road_wheel_angle_from_handwheel(chans, measured)
     return ColumnMap(name="identity", source="(identity: canonical column names)", channels=chans,
-                     reference=reference, measured=measured)
+                     reference=reference, measured=measured, rate_hz=rate_hz)
+
+
+def resolve_vehicle(vehicle: str | Path | None, cmap: ColumnMap | None) -> str | Path:
+    """The replay's vehicle: the one given (``--vehicle``), else the column map's ``vehicle:``.
+
+    Raises ``LogError`` when neither names one: observers built for the wrong car score nothing true.
+    """
+    if vehicle is not None and str(vehicle) != "":
+        return vehicle
+    if cmap is not None and cmap.vehicle:
+        return cmap.vehicle
+    from harness.vehicle import available_vehicles
+
+    raise LogError("no vehicle: give --vehicle NAME or FILE.yaml (shipped: "
+                   f"{', '.join(available_vehicles())}; a replay vehicle needs only 8 numbers, docs/VEHICLES.md) "
+                   "or a 'vehicle:' key in the column map")
 
 
 # ---- reading -----------------------------------------------------------------------------------
 
 def log_format(path: Path) -> str:
-    """``csv``, ``parquet`` or ``mat`` from the file name (gzip CSV is ``csv``)."""
+    """``csv``, ``parquet``, ``mat``, ``mdf`` or ``mcap`` from the file name (gzip CSV is ``csv``; a folder
+    is a ROS 2 bag, ``mcap``)."""
     name = path.name.lower()
+    if path.is_dir() or name.endswith(".mcap"):
+        return "mcap"
+    if name.endswith((".mf4", ".mdf")):
+        return "mdf"
     if name.endswith((".csv", ".csv.gz", ".txt", ".gz", ".tsv")):
         return "csv"
     if name.endswith((".parquet", ".pq")):
@@ -308,22 +504,31 @@ def _mat_columns(path: Path) -> dict[str, np.ndarray]:
     return out
 
 
-def read_log(path: str | Path) -> pd.DataFrame:
+def read_log(path: str | Path, wanted: set[str] | None = None) -> pd.DataFrame:
     """Read a log file into a DataFrame of its own column names (no mapping, no checks of content).
+
+    ``wanted``: the log columns a column map uses (MDF4/MCAP: they pick the time base and the topics
+    decoded; other formats read everything). Unit strings a file declares (MDF4) are in
+    ``frame.attrs["units"]`` (column -> unit as written in the file).
 
     Raises
     ------
     LogError
         File missing, empty, or not readable in the format its name says.
     """
+    from harness.replay_formats import read_mcap, read_mdf
+
     p = Path(path)
-    if not p.is_file():
+    if not (p.is_file() or (p.is_dir() and log_format(p) == "mcap")):
         raise LogError("file not found", source=str(p))
     fmt = log_format(p)
-    if p.stat().st_size == 0:
+    if p.is_file() and p.stat().st_size == 0:
         raise LogError("empty file", source=str(p))
+    units: dict[str, str] = {}
     try:
-        if fmt == "csv":
+        if fmt in ("mdf", "mcap"):
+            df, units = (read_mdf if fmt == "mdf" else read_mcap)(p, wanted)
+        elif fmt == "csv":
             sep = "\t" if p.name.lower().endswith(".tsv") else ","
             df = pd.read_csv(p, sep=sep, compression="infer", low_memory=False)
         elif fmt == "parquet":
@@ -345,6 +550,7 @@ def read_log(path: str | Path) -> pd.DataFrame:
     if len(df) == 0:
         raise LogError("empty file (no data rows)", source=str(p))
     df.columns = [str(c).strip() for c in df.columns]
+    df.attrs["units"] = units
     return df
 
 
@@ -402,7 +608,34 @@ def check_time_unit(spec: ChannelSpec, dt_s: np.ndarray, source: str) -> None:
                        "(ms, us) or 'scale' of time in the column map", source=source)
 
 
-def apply_map(raw: pd.DataFrame, cmap: ColumnMap, source: str) -> pd.DataFrame:
+def check_file_unit(name: str, c: ChannelSpec, file_units: dict[str, str], source: str) -> None:
+    """Raise ``LogError`` when the file states a unit for the column that the map does not read it in.
+
+    Only when the map gives no ``scale`` of its own (a scale is the user saying how to convert) and the
+    file's unit string is one ``FILE_UNITS`` knows.
+    """
+    declared = FILE_UNITS.get(file_units.get(c.column, "").strip())
+    if declared is None or c.scale != 1.0 or UNITS[declared][1] != si_unit_of(name):
+        return
+    read_as = c.unit or next(u for u, (k, si) in UNITS.items() if si == si_unit_of(name) and k == 1.0)
+    if not math.isclose(UNITS[declared][0], UNITS[read_as][0], rel_tol=1e-9):
+        raise LogError(f"column {c.column!r} is in {declared} according to the file, but the column map reads "
+                       f"it as {read_as} ({name}): set 'unit: {declared}' in the column map", source=source)
+
+
+def _time_origin(t: np.ndarray, origin: str) -> float:
+    """The time subtracted from the log's clock [s] (``ColumnMap.origin``); 0 keeps the log's own times."""
+    if origin == "log" or t.size == 0:
+        return 0.0
+    if origin == "start":
+        return float(t[0])
+    # auto: shift only a clock whose last digit in the CSV files would exceed a thousandth of a step
+    h = float(np.median(np.diff(t))) if t.size >= 2 else 1.0
+    resolution = 10.0 ** (math.floor(math.log10(max(abs(t[0]), abs(t[-1]), 1e-300))) + 1 - CSV_SIGNIFICANT_DIGITS)
+    return float(t[0]) if resolution > 1e-3 * h else 0.0
+
+
+def apply_map(raw: pd.DataFrame, cmap: ColumnMap, source: str, vehicle: Any = None) -> pd.DataFrame:
     """Canonical frame ``t_s`` + every mapped channel in SI, checked.
 
     Parameters
@@ -412,45 +645,101 @@ def apply_map(raw: pd.DataFrame, cmap: ColumnMap, source: str) -> pd.DataFrame:
     cmap : ColumnMap
     source : str
         Log file name for messages.
+    vehicle : VehicleParams, optional
+        The replay's vehicle, for expressions naming its parameters (``steering_ratio`` …).
 
     Returns
     -------
     DataFrame
         (n, 1 + channels) with ``t_s`` strictly increasing [s]; channels may hold NaN.
+        ``attrs["time_origin_s"]``: the log clock's value at ``t_s = 0`` (0 when times are the log's own).
     """
-    missing = [c for c in cmap.channels.values() if c.column not in raw.columns]
+    missing = [c for c in cmap.channels.values() if c.column and c.column not in raw.columns]
     if missing:
         c = missing[0]
         near = [k for k in raw.columns if k.lower() == c.column.lower()]
         extra = f" (did you mean {near[0]!r}?)" if near else ""
         raise LogError(f"missing required column {c.column!r} (mapped to {c.name} by {cmap.source}){extra}",
                        source=source)
+    n = len(raw)
     out: dict[str, np.ndarray] = {}
+    raw_cache: dict[str, np.ndarray] = {}
+
+    def raw_column(column: str, key: str) -> np.ndarray:
+        if column not in raw_cache:
+            raw_cache[column] = _numeric(raw, column, source, key)
+        return raw_cache[column]
+
+    def derive(key: str, c: ChannelSpec, t: np.ndarray) -> np.ndarray:
+        def lookup(name: str) -> np.ndarray:
+            if name in out:
+                return out[name]
+            if name in VEHICLE_NAMES:
+                if vehicle is None:
+                    raise LogError(f"{key}: expression {c.expr!r} needs the vehicle's {name}: give --vehicle",
+                                   source=cmap.source)
+                return np.asarray(float(attrgetter(VEHICLE_NAMES[name])(vehicle)))
+            if name in raw.columns:
+                return raw_column(name, key)
+            near = [k for k in raw.columns if k.lower() == name.lower()]
+            hint = f" (did you mean {near[0]!r}?)" if near else ""
+            raise LogError(f"{key}: expression {c.expr!r} names {name!r}, which is not a map key, a vehicle "
+                           f"parameter ({', '.join(VEHICLE_NAMES)}) or a column of {Path(source).name}{hint}",
+                           source=cmap.source)
+
+        def column(name: str) -> np.ndarray:
+            if name not in raw.columns:
+                raise LogError(f"{key}: col({name!r}) is not a column of {Path(source).name}", source=cmap.source)
+            return raw_column(name, key)
+
+        return evaluate(c.expression, lookup, column, t) * (c.factor * c.scale) + c.offset
+
+    if cmap.rate_hz is not None:
+        t = cmap.start_s + np.arange(n) / cmap.rate_hz
+    else:
+        tc = cmap.channels["t_s"]
+        t = (derive("time", tc, np.arange(n, dtype=float)) if tc.expr
+             else raw_column(tc.column, "t_s") * (tc.factor * tc.scale) + tc.offset)
+    out["t_s"] = t
     for name, c in cmap.channels.items():
-        out[name] = _numeric(raw, c.column, source, name) * (c.factor * c.scale) + c.offset
-    for name, c in cmap.channels.items():
+        if name == "t_s" or c.expr:
+            continue
+        out[name] = raw_column(c.column, name) * (c.factor * c.scale) + c.offset
         inf = np.isinf(out[name])
-        if inf.any() and name != "t_s":
+        if inf.any():
             # An overflow or "no data" marker of the logger, not a measurement: refused rather than
             # silently turned into NaN (an empty cell is how a log says "missing").
             i = int(np.flatnonzero(inf)[0])
             raise LogError(f"column {c.column!r} ({name}) has an infinite value at row {i + 1} "
                            f"({'+' if out[name][i] > 0 else '-'}inf; {int(inf.sum())} such rows): leave the "
                            "cell empty for a missing sample", source=source)
-    t = out["t_s"]
-    tcol = cmap.channels["t_s"].column
-    bad = ~np.isfinite(t)
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise LogError(f"time column {tcol!r} has a missing/non-finite value at row {i + 1}", source=source)
-    dt = np.diff(t)
-    if (dt <= 0).any():
-        i = int(np.flatnonzero(dt <= 0)[0])
-        what = "goes backwards" if dt[i] < 0 else "repeats"
-        raise LogError(f"time column {tcol!r} {what} at row {i + 2} (t={t[i]:.6g} then {t[i + 1]:.6g}); "
-                       "time must strictly increase", source=source)
-    check_time_unit(cmap.channels["t_s"], dt, source)
+    if cmap.rate_hz is None:
+        tc = cmap.channels["t_s"]
+        bad = ~np.isfinite(t)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise LogError(f"time {tc.label} has a missing/non-finite value at row {i + 1}", source=source)
+        dt = np.diff(t)
+        if (dt <= 0).any():
+            i = int(np.flatnonzero(dt <= 0)[0])
+            what = "goes backwards" if dt[i] < 0 else "repeats"
+            raise LogError(f"time column {tc.column or tc.expr!r} {what} at row {i + 2} (t={t[i]:.6g} then "
+                           f"{t[i + 1]:.6g}); time must strictly increase", source=source)
+        check_time_unit(tc, dt, source)
+    try:
+        order = cmap.derived
+    except ExpressionError as exc:
+        raise LogError(str(exc), source=cmap.source) from None
+    for name in order:
+        out[name] = derive(name, cmap.channels[name], t)
+    file_units = raw.attrs.get("units", {})
     for name, c in cmap.channels.items():
+        if c.column:
+            check_file_unit(name, c, file_units, source)
         if name != "t_s":
-            check_plausible(name, out[name], c.column, source)
-    return pd.DataFrame(out)
+            check_plausible(name, out[name], c.column or f"= {c.expr}", source)
+    origin = _time_origin(t, cmap.origin)
+    out["t_s"] = t - origin
+    frame = pd.DataFrame(out)
+    frame.attrs["time_origin_s"] = origin
+    return frame

@@ -9,21 +9,33 @@ Tire slope. With ``D = mu * Fz`` the Magic Formula's initial slope is ``B * C * 
 axle at static load and mu = 1 it is the axle cornering stiffness
 ``C_alpha = B * C * Fz_axle``. A file may give ``By`` directly or ``cornering_stiffness_Npr``, from
 which ``By = C_alpha / (Cy * Fz_axle_static)`` is derived (the file says which).
+
+Replay vehicles. A file with ``kind: replay`` gives only what the observers use (mass, yaw inertia,
+l_f, l_r, axle cornering stiffnesses, grip, steering ratio, wheel radius); ``replay_vehicle_mapping``
+derives the rest by the rules of docs/VEHICLES.md and ``VehicleParams.derived_note`` says which.
+It is accepted by ``replay`` only (``load_vehicle(..., replay=True)``): simulating a car needs the
+full set, whose suspension, inertias and drivetrain shape the truth.
+
+Every field error of a file is reported at once, joined by ``"; "`` in one line.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from importlib.resources import files
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from harness.errors import VehicleError
-from harness.strict_yaml import Fields, load_mapping
+from harness.strict_yaml import Fields, load_mapping, short_repr
 
 G = 9.81  # m/s^2
 DRIVE_LAYOUTS = ("rwd", "fwd", "awd")
+VEHICLE_KINDS = ("full", "replay")
+_T = TypeVar("_T")
 
 
 @dataclass(frozen=True)
@@ -100,6 +112,8 @@ class VehicleParams:
     drivetrain: Drivetrain
     steering: Steering
     path: str = ""
+    kind: str = "full"  # "replay": only the observers' fields were given, the rest derived
+    derived_note: str = ""  # replay vehicles: which fields were derived and how (one line)
 
     # ---- bicycle-model view --------------------------------------------------------------
     @property
@@ -137,6 +151,9 @@ class VehicleParams:
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
         d.pop("path", None)
+        if self.kind == "full":  # keep a full set's dictionary as it always was
+            d.pop("kind", None)
+            d.pop("derived_note", None)
         d["derived"] = {
             "wheelbase_m": self.wheelbase_m,
             "fz_front_static_N": self.fz_front_static_N,
@@ -153,11 +170,64 @@ class VehicleParams:
 
 # ---- loading ---------------------------------------------------------------------------------
 
-def _axle_tire(f: Fields, fz_axle: float) -> AxleTire:
+class _AllFields(Fields):
+    """``Fields`` that records every failing field of a file in ``errors`` and goes on.
+
+    A failing number reads as NaN, a failing string as "" (or its first choice), so that the rest of
+    the file is still checked; the caller raises one ``VehicleError`` listing them all.
+    """
+
+    def __init__(self, data: Any, *, source: str, errors: list[str], prefix: str = "", quiet: bool = False) -> None:
+        self.errors = errors
+        self.quiet = quiet  # a sub-mapping that is not a mapping: its fields are not reported one by one
+        if not isinstance(data, Mapping):
+            self._record(f"{prefix}: must be a mapping, got {type(data).__name__}")
+            data, self.quiet = {}, True
+        super().__init__(data, source=source, error=VehicleError, prefix=prefix)
+
+    def _record(self, message: str) -> None:
+        if not self.quiet:
+            self.errors.append(message)
+
+    def _try(self, read: Callable[[], _T], fallback: _T) -> _T:
+        try:
+            return read()
+        except VehicleError as exc:
+            self._record(str(exc).removeprefix(f"{self.source}: "))
+            return fallback
+
+    def number(self, key: str, default: Any = ..., **kw: Any) -> float:
+        return self._try(lambda: Fields.number(self, key, default, **kw), math.nan)
+
+    def string(self, key: str, default: Any = ..., *, choices: tuple[str, ...] | None = None) -> str:
+        return self._try(lambda: Fields.string(self, key, default, choices=choices), choices[0] if choices else "")
+
+    def sub(self, key: str, default: Any = ...) -> _AllFields:
+        v = self._try(lambda: Fields.raw(self, key, default), {})
+        return _AllFields(v if v is not None else {}, source=self.source, errors=self.errors,
+                          prefix=self._name(key), quiet=self.quiet)
+
+    def done(self) -> None:
+        for key in sorted(set(self.data) - self._seen):
+            self._record(f"{self._name(key)}: unknown field (known: {', '.join(sorted(self._seen))})")
+
+
+def _raise_all(errors: list[str], source: str, rename: Mapping[str, str] | None = None) -> None:
+    """One ``VehicleError`` listing every error; ``rename`` maps full-set field names to the file's own."""
+    if errors:
+        if rename:
+            errors = [next((new + e[len(old):] for old, new in rename.items() if e.startswith(old + ":")), e)
+                      for e in errors]
+        raise VehicleError("; ".join(errors), source=source)
+
+def _axle_tire(f: _AllFields, fz_axle: float) -> AxleTire:
     cy = f.number("Cy", lo=0.5, hi=3.0)
     if f.has("By") and f.has("cornering_stiffness_Npr"):
-        raise f.fail("By", "give either By or cornering_stiffness_Npr, not both")
-    if f.has("cornering_stiffness_Npr"):
+        f.raw("By")
+        f.raw("cornering_stiffness_Npr")
+        f._record(f"{f._name('By')}: give either By or cornering_stiffness_Npr, not both")
+        by, src = math.nan, "B given"
+    elif f.has("cornering_stiffness_Npr"):
         c_alpha = f.number("cornering_stiffness_Npr", lo=1e3, hi=1e6)
         by, src = c_alpha / (cy * fz_axle), "B derived from cornering_stiffness_Npr"
     else:
@@ -169,8 +239,22 @@ def _axle_tire(f: Fields, fz_axle: float) -> AxleTire:
 
 
 def parse_vehicle(data: dict[str, Any], source: str) -> VehicleParams:
-    """Validate a vehicle mapping (as read from YAML) and build ``VehicleParams``."""
-    f = Fields(data, source=source, error=VehicleError)
+    """Validate a vehicle mapping (as read from YAML) and build ``VehicleParams``.
+
+    ``kind: replay`` files (only the observers' fields) are completed by ``replay_vehicle_mapping``.
+    Raises one ``VehicleError`` listing every field error of the file.
+    """
+    errors: list[str] = []
+    kind = data.get("kind", "full") if isinstance(data, Mapping) else "full"
+    if kind not in VEHICLE_KINDS:
+        raise VehicleError(f"must be one of {', '.join(VEHICLE_KINDS)} (got {short_repr(kind)})", source=source,
+                           field="kind")
+    note = ""
+    if kind == "replay":
+        from harness.vehicle_replay import replay_vehicle_mapping
+
+        data, note = replay_vehicle_mapping(data, source)
+    f = _AllFields({k: v for k, v in data.items() if k != "kind"}, source=source, errors=errors)
     name = f.string("name")
     mass = f.number("mass_kg", lo=50.0, hi=40000.0)
     lf = f.number("lf_m", lo=0.1, hi=5.0)
@@ -234,18 +318,25 @@ def parse_vehicle(data: dict[str, Any], source: str) -> VehicleParams:
         drivetrain=drive,
         steering=steer,
         path=source,
+        kind=kind,
+        derived_note=note,
     )
     f.done()
+    # physical consistency of values that are each in range (a NaN is a field error reported above)
     if 4 * v.unsprung_mass_kg >= 0.5 * v.mass_kg:
-        raise VehicleError(f"unsprung mass 4x{v.unsprung_mass_kg:g} kg is not below half the total mass",
-                           source=source, field="unsprung_mass_kg")
+        errors.append(f"unsprung_mass_kg: unsprung mass 4x{v.unsprung_mass_kg:g} kg is not below half the "
+                      "total mass")
     if v.roll_inertia_kgm2 + v.pitch_inertia_kgm2 < v.yaw_inertia_kgm2:
-        raise VehicleError(f"roll + pitch inertia {v.roll_inertia_kgm2 + v.pitch_inertia_kgm2:g} kg m^2 is below "
-                           f"the yaw inertia {v.yaw_inertia_kgm2:g}: no rigid body has that (Ix + Iy >= Iz)",
-                           source=source, field="pitch_inertia_kgm2")
+        errors.append(f"pitch_inertia_kgm2: roll + pitch inertia {v.roll_inertia_kgm2 + v.pitch_inertia_kgm2:g} "
+                      f"kg m^2 is below the yaw inertia {v.yaw_inertia_kgm2:g}: no rigid body has that "
+                      "(Ix + Iy >= Iz)")
     if v.h_cg_m <= v.wheel_radius_m * 0.5:
-        raise VehicleError(f"CG height {v.h_cg_m:g} m is below half the wheel radius", source=source,
-                           field="h_cg_m")
+        errors.append(f"h_cg_m: CG height {v.h_cg_m:g} m is below half the wheel radius")
+    if kind == "replay":
+        from harness.vehicle_replay import FIELD_NAMES
+
+        _raise_all(errors, source, FIELD_NAMES)
+    _raise_all(errors, source)
     return v
 
 
@@ -258,11 +349,19 @@ def available_vehicles() -> list[str]:
     return sorted(p.stem for p in vehicles_dir().glob("*.yaml"))
 
 
-def load_vehicle(name_or_path: str | Path) -> VehicleParams:
-    """Load a shipped set by name (``"sedan"``) or any YAML file by path."""
+def load_vehicle(name_or_path: str | Path, *, replay: bool = False) -> VehicleParams:
+    """Load a shipped set by name (``"sedan"``) or any YAML file by path.
+
+    ``replay=True`` also accepts a replay vehicle (``kind: replay``); without it such a file is refused,
+    since simulating a car needs the fields a replay vehicle leaves out.
+    """
     p = Path(name_or_path)
     if p.suffix.lower() not in (".yaml", ".yml"):
         p = vehicles_dir() / f"{name_or_path}.yaml"
         if not p.is_file():
             raise VehicleError(f"unknown vehicle {str(name_or_path)!r} (available: {', '.join(available_vehicles())})")
-    return parse_vehicle(load_mapping(p, VehicleError), str(p))
+    data = load_mapping(p, VehicleError)
+    if data.get("kind") == "replay" and not replay:
+        raise VehicleError("a replay vehicle (kind: replay) has only the fields observers use; simulating a car "
+                           "needs the full vehicle format (docs/VEHICLES.md)", source=str(p), field="kind")
+    return parse_vehicle(data, str(p))

@@ -97,7 +97,7 @@ def test_skipped_segments_are_reported_and_never_scored(tmp_path: Path) -> None:
     log = stop_and_go_log(np.random.default_rng(3))
     src = tmp_path / "stopgo.parquet"
     log.to_parquet(src)
-    out = replay(src, observers=["kf_bicycle"], out=tmp_path / "out")
+    out = replay(src, vehicle="ferrari_250lm", observers=["kf_bicycle"], out=tmp_path / "out")
     segs = pd.read_csv(out / "stopgo" / "segments.csv")
     assert segs.status.tolist() == ["run", "skipped", "run", "skipped", "run"]
     assert segs.reason[1].startswith("standstill") and segs.reason[3].startswith("gap of 3")
@@ -131,8 +131,8 @@ def test_observers_are_reset_at_each_segment_start(tmp_path: Path) -> None:
     whole, part = tmp_path / "whole.csv", tmp_path / "part.csv"
     log.to_csv(whole, index=False)
     log[log.t_s >= 14.0].iloc[:600].to_csv(part, index=False)  # the second driving stretch alone
-    a = replay(whole, observers=["kf_bicycle"], out=tmp_path / "a")
-    b = replay(part, observers=["kf_bicycle"], out=tmp_path / "b")
+    a = replay(whole, vehicle="ferrari_250lm", observers=["kf_bicycle"], out=tmp_path / "a")
+    b = replay(part, vehicle="ferrari_250lm", observers=["kf_bicycle"], out=tmp_path / "b")
     ea = pd.read_csv(a / "whole" / "estimates.csv")
     eb = pd.read_csv(b / "part" / "estimates.csv")
     ea = ea[(ea.segment == 2) & (ea.t_s <= eb.t_s.max())].reset_index(drop=True)
@@ -159,7 +159,7 @@ def test_bad_log_exits_2_with_one_line(tmp_path: Path, capsys: pytest.CaptureFix
     src = tmp_path / "bad.csv"
     src.write_bytes(content)
     out = tmp_path / "out"
-    argv = ["replay", str(src), "--out", str(out), "--observer", "kf_bicycle"]
+    argv = ["replay", str(src), "--vehicle", "ferrari_250lm", "--out", str(out), "--observer", "kf_bicycle"]
     assert main([*argv, *(["--columns", columns] if columns else [])]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "bad.csv" in err and message in err
