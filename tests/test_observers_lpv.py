@@ -39,7 +39,7 @@ def _maneuver(vehicle, h: float = 2e-3, T: float = 6.0):
 
 
 @pytest.mark.parametrize("vehicle_name", ["sedan", "wang2014"])
-@pytest.mark.parametrize("name", ["lpv_wang", "lpv_wang_hinf", "lpv_wang_printed"])
+@pytest.mark.parametrize("name", ["lpv_wang", "lpv_wang_hinf", "lpv_wang_printed", "lpv_wang_h2"])
 def test_error_decays_at_certified_rate(vehicle_name: str, name: str) -> None:
     """Two runs differ only in the initial state; by linearity their difference is the error
     transition, whose P-norm must shrink at least as exp(-sigma t) (sigma = 0 for H-infinity)."""
