@@ -70,6 +70,9 @@ class ScenarioTask:
     log_rate_hz: float
     render: bool
     observer_timeout_s: float | None = None  # per-observer budget [s]; None = scaled with the duration
+    # The scenario's folder in the run, chosen before any worker starts (so two scenario files of one
+    # name get the same folders whatever order the workers finish in); None = chosen by the worker.
+    folder_label: str | None = None
 
 
 @dataclass(frozen=True)
@@ -260,9 +263,14 @@ def compute_scenario(task: ScenarioTask, *, failed: str | None = None) -> tuple[
     timings = dict.fromkeys(STAGES, 0.0)
     sc = prepare_scenario(task.name, task.vehicle, task.friction)
     # The folder is named from the scenario's sanitised name, never from the path it was given by.
-    label, folder = new_scenario_folder(task.run_dir, sc.name)
+    if task.folder_label is not None:
+        label, folder = task.folder_label, task.run_dir / task.folder_label
+        folder.mkdir(exist_ok=True)
+    else:
+        label, folder = new_scenario_folder(task.run_dir, sc.name)
     veh = sc.vehicle_params()
-    ss, sim_seed, sensor_seed = scenario_seeds(sc.seed, task.name, task.seed)
+    # Seeded by the scenario's own name, not by the path it was given by: one file, one result.
+    ss, sim_seed, sensor_seed = scenario_seeds(sc.seed, sc.name, task.seed)
     entry: dict[str, Any] = {
         "name": label, "description": sc.description, "tags": list(sc.tags), "vehicle": veh.name,
         "duration_s": sc.duration_s, "sensors": task.sensors or sc.sensors,
@@ -364,6 +372,8 @@ def crashed_scenario(task: ScenarioTask, crash: WorkerCrashed, tasks: Sequence[S
     from harness.report.rundata import scenario_folder_name
 
     def label(t: ScenarioTask) -> str:
+        if t.folder_label is not None:
+            return t.folder_label
         return scenario_folder_name(prepare_scenario(t.name, t.vehicle, t.friction).name)
 
     mine = label(task)
@@ -511,7 +521,9 @@ def run_suite(
                                inputs=[*(scenarios or []), vehicle, friction, sensors]) as tmp:
             tasks = [ScenarioTask(name=n, run_dir=tmp, observers=tuple(chosen), seed=seed, vehicle=vehicle,
                                   friction=friction, sensors=sensors, faults=faults, log_rate_hz=log_rate_hz,
-                                  render=render, observer_timeout_s=observer_timeout_s) for n in names]
+                                  render=render, observer_timeout_s=observer_timeout_s,
+                                  folder_label=new_scenario_folder(tmp, prepare_scenario(n, vehicle, friction).name)[0])
+                     for n in names]
             outcomes = {o.name: o for o in _run_tasks(tasks, jobs, bar)}
             ordered = [outcomes[n] for n in names]
             metrics = pd.concat([o.metrics for o in ordered], ignore_index=True)
