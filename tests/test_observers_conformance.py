@@ -37,6 +37,11 @@ def _signals(n: int = 800, h: float = 0.01) -> tuple[np.ndarray, dict[str, np.nd
            # Radar to a lead car pulling away at 0.5 m/s, 20 Hz.
            "range_m": np.where(np.arange(n) % 5 == 0, 30.0 + 0.5 * t, np.nan),
            "range_rate_mps": np.where(np.arange(n) % 5 == 0, 0.5, np.nan)}
+    # GNSS at 10 Hz (position of the car on its yaw path, speed).
+    gnss = (np.arange(n) % 10) == 0
+    sig.update({"gnss_x_m": np.where(gnss, np.cumsum(vx * np.cos(psi)) * h, np.nan),
+                "gnss_y_m": np.where(gnss, np.cumsum(vx * np.sin(psi)) * h, np.nan),
+                "gnss_speed_mps": np.where(gnss, vx, np.nan)})
     return t, sig
 
 
