@@ -57,6 +57,7 @@ from observers.base import ScalarLoopObserver
 from observers.bicycle import axle_stiffness, expm2_zoh
 from observers.registry import register
 from observers.tire_curves import (
+    M_GRIP,
     M_IZ,
     M_LF,
     M_LR,
@@ -65,6 +66,7 @@ from observers.tire_curves import (
     peak_scale,
     propagate,
     rk4,
+    set_grip,
     single_track,
     substeps,
 )
@@ -85,11 +87,16 @@ _NONLINEAR_OPTIONS: dict[str, float] = {
     "beta_max_rad": 0.5,            # plausible set: |v_y| <= tan(beta_max) v_x
     "constraint_margin": 0.5,       # |r| <= (1 + margin) x (kinematic / friction limit)
     "innovation_gate": 3.0,         # innovations clipped to this many predicted std (inf: off)
+    "grip_headroom": 1.1,           # curve peak >= this x low-passed measured |a_y| (0: grip not adapted)
+    "grip_filter_s": 0.2,           # time constant of that low-pass [s]
+    "grip_recovery_s": 30.0,        # time constant of the return to the configured peak [s]
+    "grip_max": 3.0,                # largest peak scale the adaptation gives [1] (x m g of lateral force)
 }
 _PSD_FLOOR = 1e-12
 
 # Indices of the filter parameter array of the compiled kernels.
-F_Q1, F_Q2, F_RR, F_RAY, F_GATE, F_TANB, F_RKIN, F_ALIM, N_FILT = range(9)
+(F_Q1, F_Q2, F_RR, F_RAY, F_GATE, F_TANB, F_RKIN, F_ALIM, F_K0, F_HEAD, F_TGF, F_TREC, F_KMAX, F_MARGIN,
+ N_FILT) = range(15)
 _W0, _WI = 1.0 / 3.0, 1.0 / 6.0  # UKF weights, n = 2, kappa = 1: kappa/(n+kappa), 1/(2(n+kappa))
 _SIGMA_SCALE = 3.0               # n + kappa
 
@@ -197,6 +204,36 @@ def _constrain(vy: float, r: float, p11: float, p12: float, p22: float, v: float
         p12 *= b / math.sqrt(p22)
         p22 = b * b
     return vy, r, p11, p12, p22
+
+
+# ---- grip the car shows (adaptive tire curves) -----------------------------------------------------
+
+@jit
+def adapt_grip(ay_lp: float, ay_meas: float, fresh_ay: bool, h: float, model: np.ndarray,
+               filt: np.ndarray) -> float:
+    """Raise the tire curves to the grip the car shows; returns the new low-passed ``a_y`` [m/s^2].
+
+    A measured lateral acceleration is a lower bound of the friction the tires deliver (the axle forces
+    sum to ``m a_y``), so the curves' peak scale is kept at ``k >= headroom |a_y,lp| / g`` (``a_y``
+    low-passed with ``grip_filter_s`` against noise and kerb spikes). Above that floor ``k`` relaxes to
+    the configured ``grip * mu`` with ``grip_recovery_s``. The cornering stiffness is kept (``set_grip``),
+    so the linear range, and every estimate made there, does not change; only the saturation moves.
+    The friction box's yaw-rate limit follows ``k``. A road slipperier than configured is not detected:
+    until the tires saturate nothing in ``(r, a_y)`` shows it.
+    """
+    if filt[F_HEAD] <= 0.0:
+        return ay_lp
+    if fresh_ay and h > 0.0:
+        ay_lp += h / (filt[F_TGF] + h) * (ay_meas - ay_lp)
+    k0, k = filt[F_K0], model[M_GRIP]
+    if h > 0.0:
+        k += h / (filt[F_TREC] + h) * (k0 - k)
+    floor = filt[F_HEAD] * abs(ay_lp) / G
+    k = max(k, floor, k0)
+    k = min(k, max(filt[F_KMAX], k0))
+    set_grip(model, k)
+    filt[F_ALIM] = (1.0 + filt[F_MARGIN]) * k * G
+    return ay_lp
 
 
 # ---- compiled filter steps -------------------------------------------------------------------------
@@ -427,14 +464,36 @@ class _NonlinearBicycle(_BicycleFilter):
         self.state_bounds = {"beta_rad": (-beta_max, beta_max)}
         margin = self._option("constraint_margin", 0.0, 10.0)
         gate = self._option("innovation_gate", 0.5, math.inf)
-        self._model = model_array(v, mu)
+        headroom = self._option("grip_headroom", 0.0, 3.0)
+        if 0.0 < headroom < 1.0:
+            raise InputError(f"must be 0 (off) or at least 1 (got {headroom!r}): a curve below the measured "
+                             "a_y cannot explain it", field=f"observer {self.name} option grip_headroom")
+        self._model0 = model_array(v, mu)
+        self._model = self._model0.copy()
         filt = np.zeros(N_FILT)
         filt[F_Q1], filt[F_Q2], filt[F_RR], filt[F_RAY] = self._q1, self._q2, self._Rr, self._Ray
         filt[F_GATE] = gate
         filt[F_TANB] = math.tan(beta_max)
         filt[F_RKIN] = (1.0 + margin) * math.tan(v.steering.max_road_wheel_angle_rad) / v.wheelbase_m
         filt[F_ALIM] = (1.0 + margin) * peak_scale(v, mu) * G
-        self._filt = filt
+        filt[F_K0], filt[F_HEAD], filt[F_MARGIN] = peak_scale(v, mu), headroom, margin
+        filt[F_TGF] = self._option("grip_filter_s", 0.0, 60.0)
+        filt[F_TREC] = self._option("grip_recovery_s", 0.0, math.inf)
+        filt[F_KMAX] = self._option("grip_max", 0.1, 10.0)
+        self._filt0 = filt
+        self._filt = filt.copy()
+
+    def _reset_extra(self) -> None:
+        super()._reset_extra()
+        # the adapted curves start from the configured ones at every reset (a new log segment)
+        if hasattr(self, "_model0"):
+            self._model[:] = self._model0
+            self._filt[:] = self._filt0
+        self._ay_lp = 0.0
+
+    def grip(self) -> float:
+        """The peak scale the tire curves have now, ``k`` [1] (peak lateral force ``k m g``)."""
+        return float(self._model[M_GRIP])
 
     def _advance(self, t_s: float, y: list[float]) -> None:
         h = self._tick(t_s, y)
@@ -443,6 +502,7 @@ class _NonlinearBicycle(_BicycleFilter):
             return
         v = vx if vx > self._vmin else self._vmin
         z, P, fresh = self._z, self._P, self._fresh
+        self._ay_lp = adapt_grip(self._ay_lp, ay_meas, fresh[3], h, self._model, self._filt)
         vy, r, p11, p12, p22 = self._kernel(z[0], z[1], P[0], P[1], P[2], delta, v, h, r_meas, ay_meas,
                                             fresh[2], fresh[3], self._model, self._filt)
         self._z = [vy, r]

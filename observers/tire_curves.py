@@ -34,10 +34,14 @@ from harness.errors import InputError
 from harness.tire import jit
 from harness.vehicle import G, VehicleParams
 
-#: Indices of ``model_array``.
-(M_MASS, M_IZ, M_LF, M_LR, M_BF, M_CF, M_EF, M_DF, M_BR, M_CR, M_ER, M_DR, M_RATE, N_MODEL) = range(14)
+#: Indices of ``model_array``. ``M_FZF``/``M_FZR``: static axle loads [N]; ``M_GRIP``: the peak scale
+#: ``k`` the curves have now (``set_grip`` moves it; ``B D = By F_z`` is kept, so is the stiffness).
+(M_MASS, M_IZ, M_LF, M_LR, M_BF, M_CF, M_EF, M_DF, M_BR, M_CR, M_ER, M_DR, M_RATE, M_FZF, M_FZR, M_GRIP,
+ N_MODEL) = range(17)
 #: Largest RK4 sub-steps per filter step (bounds the cost at very low speed).
 MAX_SUBSTEPS = 50
+#: Largest normalised slip ``B alpha`` the curve inversion returns (far past any tire's peak).
+X_MAX = 1.0e4
 
 
 @dataclass(frozen=True)
@@ -84,10 +88,81 @@ def model_array(vehicle: VehicleParams, mu: float = 1.0) -> np.ndarray:
     out[M_BF], out[M_CF], out[M_EF], out[M_DF] = f.B, f.C, f.E, f.D
     out[M_BR], out[M_CR], out[M_ER], out[M_DR] = r.B, r.C, r.E, r.D
     out[M_RATE] = (cf + cr) / m + (lf * lf * cf + lr * lr * cr) / iz
+    out[M_FZF], out[M_FZR] = vehicle.fz_front_static_N, vehicle.fz_rear_static_N
+    out[M_GRIP] = peak_scale(vehicle, mu)
     return out
 
 
 # ---- compiled model ---------------------------------------------------------------------------------
+
+@jit
+def set_grip(par: np.ndarray, k: float) -> None:
+    """Rescale both axle curves in place to the peak ``k F_z,static`` [N], keeping ``B D`` (so the
+    cornering stiffness ``B C D``) and the shape: the same friction scaling as ``axle_curves``."""
+    kold = par[M_GRIP]
+    if k == kold:
+        return
+    par[M_BF] *= kold / k
+    par[M_BR] *= kold / k
+    par[M_DF] = k * par[M_FZF]
+    par[M_DR] = k * par[M_FZR]
+    par[M_GRIP] = k
+
+
+@jit
+def peak_slip(B: float, C: float, E: float) -> float:
+    """Slip angle of the Magic Formula's peak [rad]: where ``C atan(u) = pi/2``, ``u = x - E (x - atan x)``,
+    ``x = B alpha`` (solved by ``inverse_shape``). A curve with ``C <= 1`` rises towards
+    ``D sin(C pi/2)`` without a peak: its "peak" is where it reaches 99.9 % of that."""
+    if C > 1.0:
+        return inverse_shape(math.tan(0.5 * math.pi / C), E) / B
+    return inverse_shape(math.tan(math.asin(0.999 * math.sin(0.5 * math.pi * C)) / C), E) / B
+
+
+@jit
+def inverse_shape(u: float, E: float) -> float:
+    """``x >= 0`` with ``x - E (x - atan x) = u`` for ``u >= 0`` and ``E <= 1`` [1].
+
+    ``u(x)`` is increasing for ``E <= 1``. Newton's method safeguarded by a bracket (bisection when a
+    Newton step leaves it); where no root exists below ``X_MAX`` (``E = 1`` and ``u >= pi/2``) it
+    returns ``X_MAX``.
+    """
+    lo, hi = 0.0, 1.0
+    while hi < X_MAX and hi - E * (hi - math.atan(hi)) < u:
+        hi *= 2.0
+    if hi >= X_MAX:
+        return X_MAX
+    x = 0.5 * (lo + hi)
+    for _ in range(60):
+        f = x - E * (x - math.atan(x)) - u
+        if f > 0.0:
+            hi = x
+        else:
+            lo = x
+        df = 1.0 - E + E / (1.0 + x * x)
+        xn = x - f / df if df > 0.0 else 0.5 * (lo + hi)
+        if not lo < xn < hi:
+            xn = 0.5 * (lo + hi)
+        if abs(xn - x) <= 1e-13 * (1.0 + x):
+            return xn
+        x = xn
+    return x
+
+
+@jit
+def inverse_magic_formula(F: float, B: float, C: float, E: float, D: float) -> tuple[float, float]:
+    """Slip angle [rad] on the rising branch with force ``F`` [N] and the used fraction ``|F|/D`` [1].
+
+    ``|F| >= D`` (more force than the curve's peak) returns the peak slip with fraction 1: the curve
+    cannot say more there.
+    """
+    frac = abs(F) / D
+    top = 1.0 if C > 1.0 else 0.999 * math.sin(0.5 * math.pi * C)
+    if frac >= top:
+        return math.copysign(peak_slip(B, C, E), F), 1.0
+    u = math.tan(math.asin(frac) / C)
+    return math.copysign(inverse_shape(u, E) / B, F), frac
+
 
 @jit
 def magic_formula(alpha: float, B: float, C: float, E: float, D: float) -> tuple[float, float]:

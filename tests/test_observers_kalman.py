@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 import pytest
 from numba.core.registry import CPUDispatcher as Dispatcher
 from scipy.linalg import solve_discrete_are
@@ -266,9 +267,13 @@ def test_persistent_ay_mismatch_stays_in_the_plausible_set_and_recovers(name: st
     assert np.max(np.abs(tr.x[late, 0] - X[late, 0])) < 0.3
     assert np.max(np.abs(tr.x[late, 1] - X[late, 1])) < 0.05  # gyro noise 0.01 rad/s
     if name == "ekf_bicycle":
-        # The same data without the guard: the EKF runs away past the tire peak and stays there.
-        loose = create(name, SEDAN, **GUARD_OFF).run(t, Y)
+        # The same data without the guard (and the curves held at the configured grip): the EKF runs
+        # away past the tire peak and stays there. (The grip adaptation alone also recovers: the
+        # raised curves explain the fault, and the linear range they keep holds the truth after it.)
+        loose = create(name, SEDAN, **GUARD_OFF, grip_headroom=0.0).run(t, Y)
         assert np.max(np.abs(loose.x[late, 0] - X[late, 0])) > 10.0
+        adapted = create(name, SEDAN, **GUARD_OFF).run(t, Y)
+        assert np.max(np.abs(adapted.x[late, 0] - X[late, 0])) < 0.3
 
 
 def test_nonlinear_filters_track_the_revs_log(revs_log: Path) -> None:
@@ -296,3 +301,75 @@ def test_nonlinear_filters_track_the_revs_log(revs_log: Path) -> None:
         tr = obs.run(m["t_s"].to_numpy(), m[list(obs.inputs)].to_numpy())
         assert np.all(np.isfinite(tr.x)) and np.max(np.abs(tr.x[:, 0])) < 6.0
         assert np.max(np.abs(tr.x[:, 2])) < 0.3
+
+
+# ---- grip the filter was not told --------------------------------------------------------------------
+
+def _with_grip(vehicle: Any, grip: float) -> Any:
+    import dataclasses
+    return dataclasses.replace(vehicle, tires=dataclasses.replace(vehicle.tires, grip=grip))
+
+
+def _corner_beyond_the_model(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t, truth frame columns (beta, v_y, a_y), inputs (n, 4)): the sedan on 1.6 g tires at 30 m/s,
+    steer ramped over 3 s into a 28 s steady corner at 1.42 g, then straight; gyro 0.01 rad/s, a_y 0.3."""
+    truth = create("ekf_bicycle", _with_grip(SEDAN, 1.6))
+    h, vx = 0.01, 30.0
+    t = np.arange(0.0, 40.0, h)
+    delta = np.interp(t, [0, 1, 4, 32, 34, 40], [0, 0, 0.08, 0.08, 0, 0])
+    x, X, Y = (0.0, 0.0), [], []
+    for i in range(t.size):
+        if i:
+            x = truth.simulate_step(x, delta[i], vx, h)
+        ay = truth.model_ay(x[0], x[1], delta[i], vx)
+        X.append((math.atan2(x[0], vx), x[0], ay))
+        Y.append([delta[i], vx, x[1] + rng.normal(0, 0.01), ay + rng.normal(0, 0.3)])
+    return t, np.array(X), np.array(Y)
+
+
+@pytest.mark.parametrize("name", ["ekf_bicycle", "ukf_bicycle"])
+def test_filter_facing_1_4_g_on_a_0_9_g_tire_model_tracks_and_does_not_pin(name: str) -> None:
+    """The car holds 1.42 g while the filter's curves are told 0.9 g: the adapted curves follow the grip
+    the car shows, the harness scores ``ok`` (no time on the beta bound) and the sideslip stays close.
+    Without the adaptation (``grip_headroom = 0``) the same filter is more than 3 deg off in the corner."""
+    from harness.scoring import score
+
+    t, X, Y = _corner_beyond_the_model(np.random.default_rng(4))
+    assert X[:, 2].max() > 1.4 * G and np.mean(X[:, 2] > 1.4 * G) > 0.05   # the car is past the model
+    frame = pd.DataFrame({"t_s": t, "beta_rad": X[:, 0], "vy_mps": X[:, 1]})
+    hold = (t > 10.0) & (t < 32.0)
+    results = {}
+    for label, opts in (("adapted", {}), ("fixed", {"grip_headroom": 0.0})):
+        obs = create(name, _with_grip(SEDAN, 0.9), **opts)
+        tr = obs.run(t, Y)
+        row = score(frame, tr.to_frame(), scenario="corner", runs={}).set_index("state").loc["beta_rad"]
+        err = tr.x[:, 2] - X[:, 0]
+        results[label] = (str(row["status"]), float(row["rmse"]), float(np.max(np.abs(err[hold]))),
+                          float(np.max(np.abs(tr.x[:, 2]))), obs.grip())
+    status, rmse, hold_err, beta_max, grip = results["adapted"]
+    assert status == "ok"
+    assert beta_max < 0.5 * obs.state_bounds["beta_rad"][1]      # nowhere near the projection bound
+    assert rmse < math.radians(1.0) and hold_err < math.radians(1.5)
+    assert 1.3 < grip < 1.6   # the peak went to 1.1 x the 1.42 g the car showed and decays after the corner
+    assert results["fixed"][2] > math.radians(3.0)   # the fixed 0.9 g curves cannot explain the corner
+
+
+def test_grip_adaptation_keeps_the_linear_range_and_rejects_a_headroom_below_one() -> None:
+    """Raising the peak keeps the cornering stiffness (the model's a_y at small slip is unchanged)."""
+    obs = create("ekf_bicycle", SEDAN)
+    small = obs.model_ay(0.05, 0.02, 0.01, 20.0)
+    near_peak = obs.model_ay(-1.5, 0.4, 0.08, 20.0)
+    from observers.tire_curves import M_BF, M_BR, M_CF, M_CR, M_DF, M_DR, M_EF, M_ER, set_grip
+
+    def stiffness(par: np.ndarray) -> tuple[float, float]:
+        return (magic_formula(0.0, par[M_BF], par[M_CF], par[M_EF], par[M_DF])[1],
+                magic_formula(0.0, par[M_BR], par[M_CR], par[M_ER], par[M_DR])[1])
+
+    before = stiffness(obs._model)
+    set_grip(obs._model, 1.5)
+    np.testing.assert_allclose(stiffness(obs._model), before, rtol=1e-12)
+    assert obs._model[M_DF] == pytest.approx(1.5 * SEDAN.fz_front_static_N, rel=1e-12)
+    assert obs.model_ay(0.05, 0.02, 0.01, 20.0) == pytest.approx(small, rel=5e-3)
+    assert abs(obs.model_ay(-1.5, 0.4, 0.08, 20.0)) > abs(near_peak) * 1.05
+    with pytest.raises(InputError, match="grip_headroom"):
+        create("ukf_bicycle", SEDAN, grip_headroom=0.8)
