@@ -76,7 +76,7 @@ class ReplayLog:
 def log_name(path: Path) -> str:
     """Scenario name of a log: its file name without the format suffixes (``a.csv.gz`` → ``a``)."""
     name = path.name
-    for suffix in (".gz", ".csv", ".tsv", ".txt", ".parquet", ".pq", ".mat"):
+    for suffix in (".gz", ".csv", ".tsv", ".txt", ".parquet", ".pq", ".mat", ".mf4", ".mdf", ".mcap"):
         if name.lower().endswith(suffix):
             name = name[: -len(suffix)]
     return name or path.stem

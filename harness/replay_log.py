@@ -321,9 +321,8 @@ def _channel(f: Fields, key: str, signal: str) -> ChannelSpec:
 def _time(f: Fields) -> tuple[ChannelSpec | None, float | None, float, str]:
     """The ``time`` entry: (time channel or None, rate_hz or None, start_s, origin)."""
     v = f.raw("time", None)
-    if v is None:
-        raise f.fail("time", "required field is missing: a time column ({column: t}) or a sample rate "
-                             "({rate_hz: 200})")
+    if v is None:  # allowed here: --rate-hz may give it (apply_map refuses a map left without time)
+        return None, None, 0.0, "auto"
     if isinstance(v, str):
         return ChannelSpec(name="t_s", column=v), None, 0.0, "auto"
     t = f.sub("time")
@@ -696,6 +695,9 @@ def apply_map(raw: pd.DataFrame, cmap: ColumnMap, source: str, vehicle: Any = No
 
     if cmap.rate_hz is not None:
         t = cmap.start_s + np.arange(n) / cmap.rate_hz
+    elif "t_s" not in cmap.channels:
+        raise LogError("time: required field is missing: a time column (time: {column: t}) or a sample rate "
+                       "(time: {rate_hz: 200}, or --rate-hz 200)", source=cmap.source)
     else:
         tc = cmap.channels["t_s"]
         t = (derive("time", tc, np.arange(n, dtype=float)) if tc.expr
