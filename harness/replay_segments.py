@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import pandas as pd
 
-from harness.replay_log import SegmentRules
+from harness.replay_column_map import SegmentRules
 
 RUN = "run"
 SKIPPED = "skipped"
