@@ -62,9 +62,18 @@ class ObserverRun:
 
 
 def _diverged(track_x: np.ndarray, t: np.ndarray, states: tuple[str, ...]) -> str | None:
-    """A reason if the estimates are non-finite or absurd for a long stretch, else None."""
-    if not np.all(np.isfinite(track_x)):
-        bad = int(np.argmax(~np.all(np.isfinite(track_x), axis=1)))
+    """A reason if the estimates are non-finite or absurd for a long stretch, else None.
+
+    Leading NaN rows are allowed: an observer that has not had its first measurement yet (a radar
+    observer before the first radar sample) has no estimate, which is not a divergence; scoring starts
+    at its first estimate. Once all states are finite, a non-finite value means divergence.
+    """
+    finite_rows = np.all(np.isfinite(track_x), axis=1)
+    if track_x.size and not finite_rows.any():
+        return "no finite estimate at all"
+    start = int(np.argmax(finite_rows)) if track_x.size else 0
+    if not np.all(finite_rows[start:]):
+        bad = start + int(np.argmax(~finite_rows[start:]))
         return f"non-finite estimate at t={t[bad]:.3f} s"
     for j, s in enumerate(states):
         lim = ABSURD_LIMITS.get(s)

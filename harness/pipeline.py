@@ -47,9 +47,9 @@ from harness.report.rundata import (  # noqa: E402
     new_scenario_folder,
     scenario_info,
     versions,
-    write_csv,
     write_json,
 )
+from harness.table_io import check_format, estimates_wide, write_table  # noqa: E402
 from harness.worker_pool import WorkerCrashed, WorkerPool, start_method  # noqa: E402
 
 STAGES: tuple[str, ...] = ("simulate", "sensors", "observers", "scoring", "write", "render")
@@ -73,6 +73,9 @@ class ScenarioTask:
     # The scenario's folder in the run, chosen before any worker starts (so two scenario files of one
     # name get the same folders whatever order the workers finish in); None = chosen by the worker.
     folder_label: str | None = None
+    # Checked observer options (harness/observer_options.py): observer -> {option: value}.
+    observer_options: dict[str, dict[str, Any]] | None = None
+    table_format: str = "csv"  # csv | parquet (harness/table_io.py)
 
 
 @dataclass(frozen=True)
@@ -205,12 +208,14 @@ class Stages:
 def evaluate_scenario(sc: Any, vehicle: Any, observers: Sequence[str], sim_seed: int, sensor_seed: int, *,
                       sensors: str | None = None, faults: str | None = None,
                       timings: dict[str, float] | None = None,
-                      observer_timeout_s: float | None = None) -> Stages:
+                      observer_timeout_s: float | None = None,
+                      observer_options: dict[str, dict[str, Any]] | None = None) -> Stages:
     """Simulate, sense and estimate one prepared scenario (the shared core of ``run`` and ``stress``).
 
     Bad input (``InputError``) propagates; any other crash is returned as a status, so one broken
     scenario never stops a suite. ``timings`` (if given) receives the simulate/sensors/observers seconds.
-    ``observer_timeout_s``: time budget of each observer [s] (see ``harness.estimate.run_observers``).
+    ``observer_timeout_s``: time budget of each observer [s] (see ``harness.estimate.run_observers``);
+    ``observer_options``: observer -> {option: value}, checked (``harness.observer_options``).
     """
     from harness import observer_host
     from harness.estimate import run_observers
@@ -240,7 +245,8 @@ def evaluate_scenario(sc: Any, vehicle: Any, observers: Sequence[str], sim_seed:
                        outages=sc.outages, lane_gaps=sc.lane_gaps)
         timings["sensors"] = time.perf_counter() - t
         t = time.perf_counter()
-        estimates, runs = run_observers(meas.frame, vehicle, list(observers), timeout_s=observer_timeout_s)
+        estimates, runs = run_observers(meas.frame, vehicle, list(observers), timeout_s=observer_timeout_s,
+                                        options=observer_options)
         timings["observers"] = time.perf_counter() - t
     except InputError:
         raise
@@ -280,7 +286,8 @@ def compute_scenario(task: ScenarioTask, *, failed: str | None = None) -> tuple[
     }
 
     st = (evaluate_scenario(sc, veh, task.observers, sim_seed, sensor_seed, sensors=task.sensors,
-                            faults=task.faults, timings=timings, observer_timeout_s=task.observer_timeout_s)
+                            faults=task.faults, timings=timings, observer_timeout_s=task.observer_timeout_s,
+                            observer_options=task.observer_options)
           if failed is None else
           Stages(FailedTruth(status=failed), None, pd.DataFrame(columns=ESTIMATE_COLUMNS), None, failed))
     truth = st.truth
@@ -295,11 +302,11 @@ def compute_scenario(task: ScenarioTask, *, failed: str | None = None) -> tuple[
         entry["traceback"] = st.traceback
 
     t = time.perf_counter()
-    write_csv(truth.at_rate(task.log_rate_hz), folder / "truth.csv")
+    write_table(truth.at_rate(task.log_rate_hz), folder, "truth", task.table_format)
     write_json(events_list(truth.events), folder / "events.json")
     write_json(scenario_info(sc, veh), folder / "scenario.json")
     if st.measurements is not None:
-        write_csv(st.measurements.frame, folder / "measurements.csv")
+        write_table(st.measurements.frame, folder, "measurements", task.table_format)
     timings["write"] += time.perf_counter() - t
 
     estimates = st.estimates
@@ -316,7 +323,7 @@ def compute_scenario(task: ScenarioTask, *, failed: str | None = None) -> tuple[
     timings["scoring"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    write_csv(estimates, folder / "estimates.csv")
+    write_table(estimates_wide(estimates), folder, "estimates", task.table_format)  # one row per time step
     timings["write"] += time.perf_counter() - t
 
     entry["render"] = {"frames": [], "video": None, "reason": "rendering switched off (--no-render)"}
@@ -484,6 +491,8 @@ def run_suite(
     render: bool = True,
     progress: bool | None = None,
     observer_timeout_s: float | None = None,
+    observer_options: dict[str, dict[str, Any]] | None = None,
+    table_format: str = "csv",
 ) -> Path:
     """Run a suite of scenarios × observers and write the run folder with its report.
 
@@ -501,6 +510,9 @@ def run_suite(
     progress : True = tqdm bar, False = one line per scenario, None = bar only on a terminal.
     observer_timeout_s : wall-time budget of each observer's design + run [s]; default
         max(60 s, 20 × the scenario's simulated duration). Over budget: ``error: timed out after N s``.
+    observer_options : observer -> {option: value} (``harness.observer_options``; checked against each
+        observer's declared options before any work, recorded in run.json).
+    table_format : ``"csv"`` (default) or ``"parquet"`` for every table of the run folder.
 
     Returns
     -------
@@ -513,7 +525,14 @@ def run_suite(
     t_wall = time.perf_counter()
     check_log_rate(log_rate_hz)
     check_observer_timeout(observer_timeout_s)
+    check_format(table_format)
     names, chosen = _resolve(scenarios, suite_name, observers, vehicle, friction, sensors, faults)
+    from harness.observer_options import check_observer_options, options_record
+
+    # Checked (types, and each observer's own constructor on the first scenario's car) before any work.
+    observer_options = check_observer_options(observer_options, chosen,
+                                              prepare_scenario(names[0], vehicle, friction).vehicle_params()
+                                              if names else None)
     bar = Progress(len(names) * (2 if render else 1), progress, desc="roadtruth run")
     out = Path(out)
     try:
@@ -522,12 +541,13 @@ def run_suite(
             tasks = [ScenarioTask(name=n, run_dir=tmp, observers=tuple(chosen), seed=seed, vehicle=vehicle,
                                   friction=friction, sensors=sensors, faults=faults, log_rate_hz=log_rate_hz,
                                   render=render, observer_timeout_s=observer_timeout_s,
+                                  observer_options=observer_options or None, table_format=table_format,
                                   folder_label=new_scenario_folder(tmp, prepare_scenario(n, vehicle, friction).name)[0])
                      for n in names]
             outcomes = {o.name: o for o in _run_tasks(tasks, jobs, bar)}
             ordered = [outcomes[n] for n in names]
             metrics = pd.concat([o.metrics for o in ordered], ignore_index=True)
-            write_csv(metrics, tmp / "metrics.csv")
+            write_table(metrics, tmp, "metrics", table_format)
             totals = {k: round(sum(o.timings.get(k, 0.0) for o in ordered), 4) for k in STAGES}
             reasons = [o.entry.get("render", {}).get("reason") for o in ordered]
             rendered = render and any(not r for r in reasons)
@@ -535,6 +555,7 @@ def run_suite(
                 "command": "run", "suite": suite_name if not scenarios else None, "seed": seed,
                 "vehicle": vehicle, "friction": friction, "sensors": sensors, "faults": faults,
                 "log_rate_hz": log_rate_hz, "jobs": jobs, "float_format": FLOAT_FORMAT,
+                "table_format": table_format, "observer_options": options_record(observer_options),
                 "scenarios": [{k: v for k, v in o.entry.items() if k != "timings_s"} for o in ordered],
                 "observers": _observer_table(chosen),
                 "observer_runs": {o.entry["name"]: {obs: {k: v for k, v in r.items() if k != "us_per_step"}
@@ -568,13 +589,17 @@ def simulate_to_dir(
     log_rate_hz: float = 1000.0,
     sensors: str | None = None,
     faults: str | None = None,
+    table_format: str = "csv",
 ) -> Path:
     """Ground truth and measurements of one scenario (``roadtruth simulate``): ``truth.csv``,
-    ``measurements.csv``, ``events.json``, ``scenario.json`` and ``run.json`` in ``out``."""
+    ``measurements.csv`` (``.parquet`` with ``table_format="parquet"``), ``events.json``,
+    ``scenario.json`` and ``run.json`` in ``out``."""
     from harness.sensors import emulate
     from harness.simulate import simulate
+    from harness.truth_events import scored_until_of, status_of
 
     check_log_rate(log_rate_hz)
+    check_format(table_format)
     sc = prepare_scenario(scenario, vehicle, friction)
     veh = sc.vehicle_params()
     cfg = sensor_config(sc, sensors, faults)
@@ -584,12 +609,12 @@ def simulate_to_dir(
         t = time.perf_counter()
         truth = simulate(sc, seed=sim_seed)
         timings["simulate"] = time.perf_counter() - t
-        write_csv(truth.at_rate(log_rate_hz), tmp / "truth.csv")
+        write_table(truth.at_rate(log_rate_hz), tmp, "truth", table_format)
         if truth.ok:
             t = time.perf_counter()
             meas = emulate(truth.frame, veh, cfg, sensor_seed, outages=sc.outages, lane_gaps=sc.lane_gaps)
             timings["sensors"] = time.perf_counter() - t
-            write_csv(meas.frame, tmp / "measurements.csv")
+            write_table(meas.frame, tmp, "measurements", table_format)
         write_json(events_list(truth.events), tmp / "events.json")
         write_json(scenario_info(sc, veh), tmp / "scenario.json")
         write_json({"command": "simulate", "scenario": sc.name, "status": str(truth.status),
@@ -597,7 +622,11 @@ def simulate_to_dir(
                     "faults": faults, "seed": seed if seed is not None else sc.seed,
                     "entropy": str(ss.entropy), "spawn_key": list(ss.spawn_key),
                     "simulation_seed": sim_seed, "sensor_seed": sensor_seed, "log_rate_hz": log_rate_hz,
-                    "sim_steps": len(truth.frame), "versions": versions(), "git_revision": git_revision(),
-                    "timings_s": {k: round(v, 4) for k, v in timings.items()}}, tmp / "run.json")
+                    "table_format": table_format, "truth_status": status_of(truth), "scored_until_s": scored_until_of(truth),
+                    "truth_events": [e.to_dict() for e in getattr(truth, "truth_events", ())],
+                    "sim_steps": len(truth.frame), "versions": versions(), "git_revision": git_revision()},
+                   tmp / "run.json")
+        # Timings differ between identical runs: kept out of run.json so that it is byte-identical.
+        write_json({"timings_s": {k: round(v, 4) for k, v in timings.items()}}, tmp / "timings.json")
     return Path(out).resolve()
 

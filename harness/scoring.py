@@ -39,6 +39,15 @@ precedence is error > diverged > saturated > ok; ``skipped`` is carried as it is
   ``harness.estimate.ABSURD_LIMITS`` when its bound lies inside them; sitting on the bound is its
   way of being absurd, and this is the check that sees it.
 
+* ``unusable (RMS error N× that of assuming zero)`` on the row of a state whose RMS error exceeds
+  both the RMS of the true state over the scored window (the error of the trivial estimate 0) and
+  its convergence band (``unusable_state_status``; not for poses and distances, which have no
+  natural zero). This one is per state: a radar observer whose range is good but whose lead
+  acceleration is worse than guessing 0 is ``ok`` on range and ``unusable`` on the acceleration.
+
+Scoring of each observer starts at its first estimate: leading NaN rows (no measurement yet) are
+"not started", neither scored nor counted as missing.
+
 Fractions are time-weighted and taken per state; the observer's status uses its worst state and is
 written in all its rows.
 
@@ -277,6 +286,11 @@ def align(
         ``lo, hi, var``.
     """
     est = est.sort_values("t_s", kind="stable")
+    # Scoring starts at the observer's first estimate (rows before it are "not started yet", e.g.
+    # a radar observer before the first radar sample), not at its first output row.
+    started = np.isfinite(est["value"].to_numpy(float)) if "value" in est.columns else np.ones(len(est), bool)
+    if started.any() and not started[0]:
+        est = est.iloc[int(np.argmax(started)):]
     t_est = est["t_s"].to_numpy(float)
     idx = np.searchsorted(t_est, t_truth + TIME_TOL_S, side="right") - 1
     keep = idx >= 0
@@ -331,13 +345,44 @@ def _percent(fraction: float) -> str:
     return f"{p:.1f}" if p < 10.0 else f"{p:.0f}"
 
 
+#: States whose value has no natural zero (a pose in the world, a distance): "worse than assuming
+#: zero" says nothing about them, so ``unusable_state_status`` leaves them alone.
+NO_ZERO_BASELINE = frozenset({"x_m", "y_m", "psi_rad", "s_m", "range_m"})
+#: An estimate whose RMS error exceeds both the state's own RMS over the scored window (the error of
+#: the estimate 0) and its convergence band is not usable: ``unusable (…)``.
+UNUSABLE_RATIO = 1.0
+
+
+def unusable_state_status(state: str, status: str, rmse_value: float, truth: np.ndarray, band: float) -> str:
+    """``unusable (RMS error N× that of assuming zero)`` for a state whose estimate is worse than the
+    trivial estimate 0 (and than its convergence band); otherwise ``status`` unchanged.
+
+    Only ``ok`` is overridden. A kinematic integrator that drifted to 20° on a car whose sideslip
+    stays within 2°, or a certified high-gain observer that turns range noise into 50 m/s² of
+    acceleration error, is reported as such, not as ``ok`` with a number among numbers.
+    """
+    if not status.startswith("ok") or state in NO_ZERO_BASELINE or not math.isfinite(rmse_value):
+        return status
+    finite = truth[np.isfinite(truth)]
+    if not finite.size:
+        return status
+    zero_error = float(np.sqrt(np.mean(finite ** 2)))
+    floor = band if math.isfinite(band) else 0.0
+    if rmse_value > max(UNUSABLE_RATIO * zero_error, floor):
+        ratio = rmse_value / zero_error if zero_error > 0 else math.inf
+        what = f"{ratio:.1f}×" if ratio < 10 else (f"{ratio:.0f}×" if math.isfinite(ratio) else "∞×")
+        return f"unusable (RMS error {what} that of assuming zero)"
+    return status
+
+
 def usability_status(status: str, missing: float, saturated: float) -> str:
     """The status of an observer given the worst missing and on-bound fractions of its states.
 
     Only ``ok`` is overridden (error, diverged and skipped stay); missing estimates come before
     saturation (a gap is worse than a pinned value). NaN fractions (nothing scored) change nothing.
     """
-    if not status.startswith("ok"):
+    # A missing or pinned estimate is the more specific verdict than "unusable" (which it causes).
+    if not (status.startswith("ok") or status.startswith("unusable")):
         return status
     if missing > MAX_MISSING_FRACTION:
         return f"diverged (no estimate for {_percent(missing)} % of the time)"
@@ -474,6 +519,8 @@ def score(
                     a = align(t_scored, truth_values, g, state, band)
                     row.update({k: f(a) for k, f in METRICS.items()})
                     row["n_scored"] = int(a.t_s.size)
+                    row["status"] = unusable_state_status(state, str(row["status"]), row["rmse"],
+                                                          a.truth, band)
                     missing.append(missing_fraction(a))
                     if state in declared:
                         saturated.append(bound_fraction(a, declared[state]))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -181,3 +182,38 @@ def test_band_override_and_nees_band_helper():
     est = long("kf", "vy_mps", T, 0.05 * np.exp(-T))
     r = one_row(truth_frame(T, vy_mps=np.zeros_like(T)), est, bands={"vy_mps": 0.01})
     assert r.conv_time_s == pytest.approx(math.log(5.0), abs=1.5e-3)
+
+
+def test_an_estimate_worse_than_assuming_zero_is_unusable_on_that_state_only():
+    """RMS error above the state's own RMS (and its band) -> ``unusable`` on that row; the other
+    states of the observer stay ``ok``; poses have no natural zero and are never judged so."""
+    t = np.round(np.arange(0.0, 5.0, 0.01), 9)
+    truth = pd.DataFrame({"t_s": t, "beta_rad": 0.02 * np.sin(t), "vy_mps": 0.3 * np.sin(t),
+                          "x_m": 20.0 * t})
+    rows = []
+    for state, value in (("beta_rad", 0.02 * np.sin(t) + 0.05),   # biased: 3.4x the signal's RMS
+                         ("vy_mps", 0.3 * np.sin(t) + 0.01),      # good
+                         ("x_m", 20.0 * t + 3.0)):                 # 3 m off, but a pose
+        rows.append(pd.DataFrame({"t_s": t, "observer": "o", "state": state, "value": value}))
+    m = scoring.score(truth, pd.concat(rows, ignore_index=True), scenario="s",
+              runs={"o": SimpleNamespace(status="ok", us_per_step=1.0, certified=False, design_reason="",
+                                         n_steps=t.size)})
+    st = dict(zip(m["state"], m["status"], strict=True))
+    # RMS of 0.02 sin t over 5 s is 0.0145 rad: the 0.05 rad bias is 3.4x that of the estimate 0
+    assert st["beta_rad"].startswith("unusable (RMS error 3.4×"), st
+    assert st["vy_mps"] == "ok" and st["x_m"] == "ok", st
+
+
+def test_scoring_starts_at_the_first_estimate_not_the_first_row():
+    """Leading NaN rows (no measurement yet) are not scored and not 'missing'."""
+    t = np.round(np.arange(0.0, 2.0, 0.01), 9)
+    truth = pd.DataFrame({"t_s": t, "range_m": 30.0 + t})
+    value = 30.0 + t
+    value[t < 0.5] = np.nan
+    est = pd.DataFrame({"t_s": t, "observer": "o", "state": "range_m", "value": value})
+    m = scoring.score(truth, est, scenario="s", runs={"o": SimpleNamespace(status="ok", us_per_step=1.0,
+                                                                  certified=False, design_reason="",
+                                                                  n_steps=t.size)})
+    row = m.iloc[0]
+    assert row["status"] == "ok" and row["n_scored"] == int(np.sum(t >= 0.5 - 1e-9))
+    assert row["rmse"] == pytest.approx(0.0, abs=1e-12)

@@ -24,7 +24,7 @@ OK, NOT_APPLICABLE, FAILED, ABSENT = "ok", "n/a", "failed", "absent"
 _SENSOR_OF_SIGNAL = {
     "range_m": "radar", "range_rate_mps": "radar",
     "y_lane_m": "lane camera", "psi_lane_rad": "lane camera", "rho_1pm": "lane camera",
-    "x_gnss_m": "GNSS", "y_gnss_m": "GNSS", "v_gnss_mps": "GNSS",
+    "gnss_x_m": "GNSS", "gnss_y_m": "GNSS", "gnss_speed_mps": "GNSS", "gnss_course_rad": "GNSS",
 }
 
 
