@@ -1,0 +1,170 @@
+r"""Proportional-integral unknown-input observer: the baseline of Nguyen's neural adaptive observer.
+
+Q. H. Nguyen, PhD thesis draft (Université de Lorraine, CRAN), ch. 1, sec. 7.3 compares the neural
+adaptive observer against "a PI observer" without giving its form or gains. This is the classical
+PI observer (Wojciechowski 1978; Söffker, Yu & Müller 1995) on the chapter's vehicle (1.55)-(1.56):
+
+.. math::
+
+    \dot{\hat x} = A(\rho)\hat x + B_u u + B_\mu\hat\mu + L_P(y - C\hat x),\qquad
+    \dot{\hat\mu} = -\kappa\hat\mu + L_I(y - C\hat x),
+
+``x = (v_x, v_y, psi, r)``, ``mu = (f_yf, f_yr)`` [kN], ``y = (v_x, psi_m, r)``; gains from the
+certified decay + disk LMIs of :mod:`observers.pi_observer_design`. The leakage ``kappa`` is
+required: without it the integrated unknown input has an unobservable mode at ``s = 0`` for this
+``C``. Measurements and heading as in ``uio_nguyen``: ``a <- ax_mps2``, ``psi_m`` is the
+trapezoidal integral of the gyro (re-centred to (-pi, pi] with ``psi_hat``). Between samples the
+affine ODE is integrated by RK4 (first-order hold of the inputs, sub-steps ``||M|| h <= 0.5``);
+without fresh ``v_x`` and ``r`` (older than ``hold_s``) it predicts without correction.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from harness.errors import InputError
+from observers.base import ScalarLoopObserver
+from observers.lmi import DesignResult, usable_gains
+from observers.registry import register
+from observers.uio_nguyen import SUBSTEP_RATE, TWO_PI, affine_rk4
+from observers.uio_nguyen_design import MU_SCALE_N, N_MU, N_X, N_Y, scheduling_points, vehicle_model
+
+N_A = N_X + N_MU
+
+
+@register
+class PIObserverNguyen(ScalarLoopObserver):
+    """Leaky PI unknown-input observer on Nguyen's LPV vehicle (baseline of ch. 1, sec. 7.3)."""
+
+    name = "pi_observer_nguyen"
+    citation = ("Q. H. Nguyen, PhD thesis draft, Univ. de Lorraine (CRAN), ch. 1, sec. 7.3 (PI baseline), "
+                "vehicle (1.55)-(1.56); PI observer form of Söffker, Yu and Müller, 1995")
+    inputs = ("vx_mps", "yaw_rate_radps", "ax_mps2", "delta_rad")
+    states = ("vy_mps", "yaw_rate_radps", "beta_rad")
+    variant = "leaky_pi"
+    default_options: Mapping[str, Any] = {
+        "kappa": 0.2,                  # leakage of the unknown-input integrator [1/s]
+        "decay_rate": 0.1,             # certified decay rate alpha < kappa [1/s]
+        "pole_radius": 50.0,           # certified bound on |pole| [1/s]
+        "vx_range_mps": (5.0, 30.0),   # design domain; v_x is clamped into it
+        "grid_points": 101,
+        "hold_s": 0.1,
+        "use_cache": True,
+    }
+
+    def _setup(self) -> None:
+        o = self.options
+        try:
+            lo, hi = (float(x) for x in o["vx_range_mps"])
+            kappa, alpha, radius = float(o["kappa"]), float(o["decay_rate"]), float(o["pole_radius"])
+            ngrid, hold = int(o["grid_points"]), float(o["hold_s"])
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"bad option value ({exc})", field=f"observer {self.name}") from exc
+        if not (0.0 < lo < hi) or not (0.0 < alpha < kappa) or radius <= alpha or ngrid < 2 or hold <= 0.0:
+            raise InputError(f"bad options vx_range_mps={o['vx_range_mps']}, kappa={kappa}, decay_rate={alpha}, "
+                             f"pole_radius={radius}, grid_points={ngrid}, hold_s={hold} (need 0 < decay_rate "
+                             f"< kappa < pole_radius)", field=f"observer {self.name}")
+        self._vlo, self._vhi, self._hold, self._kappa = lo, hi, hold, kappa
+        self._model = vehicle_model(self.vehicle)
+        self._consts: tuple[np.ndarray, ...] | None = None
+
+    def _compute_design(self) -> DesignResult:
+        from observers.pi_observer_design import design_for
+        return design_for(self)
+
+    def constants(self) -> tuple[np.ndarray, ...]:
+        """``(Fs, Gs, Fp, Gp, bounds)`` of the corrected and the prediction ODEs (affine in rho)."""
+        if self._consts is None:
+            L = np.array(usable_gains(self.name, self.design(), ["L"])).reshape(N_A, N_Y)
+            mdl = self._model
+            Fp = np.zeros((3, N_A, N_A))
+            for i, Ai in enumerate((mdl.A0, mdl.A1, mdl.A2)):
+                Fp[i, :N_X, :N_X] = Ai
+            Fp[0, :N_X, N_X:] = mdl.Bmu
+            Fp[0, N_X:, N_X:] = -self._kappa * np.eye(N_MU)
+            Ca = np.hstack([mdl.C, np.zeros((N_Y, N_MU))])
+            Fs = Fp.copy()
+            Fs[0] -= L @ Ca
+            Bua = np.vstack([mdl.Bu, np.zeros((N_MU, 2))])
+            Gs = np.zeros((3, N_A, N_Y + 2))
+            Gs[0] = np.hstack([L, Bua])
+            Gp = np.zeros((3, N_A, N_Y + 2))
+            Gp[0, :, N_Y:] = Bua
+            _, grid = scheduling_points((self._vlo, self._vhi), 41)
+            bounds = np.array([max(np.linalg.norm(S[0] + a * S[1] + b * S[2], 2) for a, b in grid) for S in (Fs, Fp)])
+            self._consts = (Fs, Gs, Fp, Gp, bounds)
+        return self._consts
+
+    def _initial_state(self) -> list[float]:
+        return [0.0] * N_A
+
+    def _internal_from_x0(self, z: list[float], x0: Mapping[str, float]) -> list[float]:
+        slots = {"vy_mps": 1, "yaw_rate_radps": 3}
+        for key, value in x0.items():
+            if key not in slots:
+                raise InputError(f"cannot initialise state {key!r} (settable: {', '.join(slots)})",
+                                 field=f"observer {self.name} x0")
+            z[slots[key]] = float(value)
+        return z
+
+    def _reset_extra(self) -> None:
+        self._zh = np.array(self._z, dtype=float)
+        self._psi_m = 0.0
+        self._r_prev, self._t_r_prev = math.nan, math.nan
+        self._w_prev: np.ndarray | None = None
+        self._started = False
+
+    def _advance(self, t_s: float, y: list[float]) -> None:
+        h = self._tick(t_s, y)
+        Fs, Gs, Fp, Gp, bounds = self._consts if self._consts is not None else self.constants()
+        vx, r, ax, delta = self._u
+        z = self._zh
+        if not self._started:
+            if vx != vx:
+                return
+            z[0] = vx
+            self._started = True
+        if self._fresh[1]:
+            if self._r_prev == self._r_prev:
+                self._psi_m += 0.5 * (t_s - self._t_r_prev) * (self._r_prev + r)
+            self._r_prev, self._t_r_prev = r, t_s
+        if self._psi_m > math.pi or self._psi_m < -math.pi:
+            # psi enters only through the residual psi_m - psi_hat and nowhere in A: shift both.
+            c = TWO_PI * round(self._psi_m / TWO_PI)
+            self._psi_m -= c
+            z[2] -= c
+            if self._w_prev is not None:
+                self._w_prev[1] -= c
+        v = vx if vx == vx else z[0]
+        v = self._vlo if v < self._vlo else (self._vhi if v > self._vhi else v)
+        w1 = np.array([vx if vx == vx else z[0], self._psi_m, r if r == r else z[3],
+                       ax if ax == ax else 0.0, delta if delta == delta else 0.0])
+        w0 = self._w_prev if self._w_prev is not None else w1
+        self._w_prev = w1
+        if h <= 0.0:
+            return
+        tl = self._t_last
+        live = r == r and vx == vx and t_s - min(tl[0], tl[1]) <= self._hold
+        F, G, b = (Fs, Gs, bounds[0]) if live else (Fp, Gp, bounds[1])
+        affine_rk4(z, F, G, w0, w1, v, 1.0 / v, h, max(1, math.ceil(h * b / SUBSTEP_RATE)))
+
+    def _values(self) -> list[float]:
+        z = self._zh
+        vy, r = float(z[1]), float(z[3])
+        vx = self._u[0]
+        v = vx if vx == vx else float(z[0])
+        return [vy, r, math.atan2(vy, v) if v > 0.0 else 0.0]
+
+    def state_hat(self) -> np.ndarray:
+        """Copy of ``(v_x, v_y, psi_hat, r, f_yf [kN], f_yr [kN])``: (6,) array."""
+        return self._zh.copy()
+
+    def unknown_input_N(self) -> tuple[float, float, float]:
+        """Current ``(f_yf, f_yr, l_f f_yf - l_r f_yr)`` [N, N, N m] (non-scored extra)."""
+        f, rr = float(self._zh[4]) * MU_SCALE_N, float(self._zh[5]) * MU_SCALE_N
+        v = self.vehicle
+        return f, rr, v.lf_m * f - v.lr_m * rr

@@ -1,0 +1,125 @@
+"""Neural adaptive observer of Nguyen ch. 1 (Sections 5-6): LMI gain of Theorem 2 with the Euler disk,
+exact sensitivity gradient, the chapter's protocol (what holds and what does not), MuJoCo suite rows."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from harness.vehicle import load_vehicle
+from observers.lmi import DesignStatus
+from observers.neural_adaptive_nguyen import N_THETA, init_theta, nao_step
+from observers.neural_adaptive_nguyen_design import lmi_141
+from observers.registry import create
+from observers.uio_nguyen_design import scheduling_points, vehicle_model
+
+sys.path.insert(0, str(Path(__file__).parent))
+from test_observers_uio_nguyen import _paper_protocol, textbook_sedan  # noqa: E402
+
+SEDAN = load_vehicle("sedan")
+pytestmark = pytest.mark.usefixtures("isolated_design_cache")
+
+
+def test_gain_certified_with_euler_disk_and_printed_lmi_homogeneous() -> None:
+    d = create("nao_nguyen", SEDAN).design()
+    assert d.status is DesignStatus.CERTIFIED, d.reason
+    m = d.margins
+    assert m["euler_spectral_radius"] < 0.95 + 1e-6 and m["lmi_141_max_eig_grid"] <= -1e-7
+    model = vehicle_model(SEDAN)
+    P, L = np.array(d.P), d.gain("L")
+    verts, _ = scheduling_points((5.0, 30.0), 2)
+    for p in verts:
+        A = model.A0 + p[0] * model.A1 + p[1] * model.A2
+        s = 1e-6  # as printed (no +I) the scaled point still holds: sigma -> 0 bounds nothing
+        assert np.linalg.eigvalsh(lmi_141(s * P, s * L.T @ P, s * m["sigma"], A, model.Bmu, model.C,
+                                          plus_identity=False)).max() < 0
+        assert np.linalg.eigvalsh(lmi_141(s * P, s * L.T @ P, s * m["sigma"], A, model.Bmu, model.C)).max() > 0.5
+
+
+def test_sensitivity_gradient_equals_finite_differences() -> None:
+    """(1.45)-(1.50): the accumulated gradient over a 30-step window equals the central finite
+    difference of the summed loss (the forward sensitivity is exact for the Euler model)."""
+    model = vehicle_model(SEDAN)
+    L = create("nao_nguyen", SEDAN).design().gain("L")
+    A = model.A(20.0)
+    rng = np.random.default_rng(2)
+    theta0 = init_theta(1)
+    theta0[-66:] *= 100.0  # a non-trivial last layer, so every block of the gradient matters
+    ys = rng.normal(size=(30, 3)) * [0.1, 0.01, 0.05] + [20.0, 0.0, 0.1]
+    xt = np.array([20.0, 0.1, 0.0, 0.1])
+    mut = np.array([0.3, -0.2])
+    Ty, Tu = np.array([1.0, 100.0, 100.0]), np.array([1.0, 10.0, 0.0, 10.0])
+
+    def window(theta: np.ndarray, learn: bool) -> tuple[float, np.ndarray]:
+        x = np.array([20.0, 0.05, 0.0, 0.08])
+        S, g = np.zeros((4, N_THETA)), np.zeros(N_THETA)
+        mu, Jth, Jx = np.zeros(2), np.zeros((2, N_THETA)), np.zeros((2, 4))
+        tot = 0.0
+        for k in range(30):
+            tot += nao_step(x, S, g, theta, A, model.Bu, model.Bmu, L, ys[k], np.array([0.1, 0.02]), xt, mut, Ty, Tu,
+                            1.0, 0.01, learn, mu, Jth, Jx)
+        return tot, g
+
+    _, g = window(theta0, True)
+    idx = rng.choice(N_THETA, 40, replace=False)
+    for k in idx:
+        e = np.zeros(N_THETA)
+        e[k] = 1e-6
+        fd = (window(theta0 + e, True)[0] - window(theta0 - e, True)[0]) / 2e-6
+        assert g[k] == pytest.approx(fd, rel=1e-4, abs=1e-7), k
+
+
+@pytest.fixture(scope="module")
+def protocol_runs():
+    """The chapter's protocol (truth x1.2, Pacejka, 60 s, noise), NAO variants next to PI and UIO."""
+    v = textbook_sedan()
+    t, X, Y = _paper_protocol(v, T=60.0)
+    out = {}
+    for name in ("pi_observer_nguyen", "uio_nguyen", "nao_nguyen", "nao_nguyen_stepwise", "nao_nguyen_ensemble"):
+        o = create(name, v)
+        x = o.run(t, Y).x
+        out[name] = (x, np.array(getattr(o, "loss_trace", [])))
+    return t, X, out
+
+
+def test_protocol_what_holds_and_what_does_not(protocol_runs) -> None:
+    """Digest protocol on the chapter's own model. Holds: the loss reaches a plateau; NAO v_y bounded.
+    Does not hold here (asserted as measured, documented): NAO v_y and r errors below the PI's,
+    accumulation lowering the early peak."""
+    t, X, out = protocol_runs
+    late, early = t >= 10.0, t < 10.0
+
+    def rms(name: str, col: int, truth: np.ndarray) -> float:
+        return float(np.sqrt(np.mean((out[name][0][late, col] - truth[late]) ** 2)))
+
+    nao_vy, pi_vy = rms("nao_nguyen", 0, X[:, 1]), rms("pi_observer_nguyen", 0, X[:, 1])
+    nao_r, pi_r = rms("nao_nguyen", 1, X[:, 3]), rms("pi_observer_nguyen", 1, X[:, 3])
+    assert nao_vy < 0.15 and np.all(np.isfinite(out["nao_nguyen"][0]))
+    assert nao_vy > pi_vy and nao_r > pi_r  # the chapter's claim is not reproduced (numbers in the docs)
+    loss = out["nao_nguyen"][1]
+    n = len(loss)
+    halves = [float(loss[i:i + n // 6].mean()) for i in range(0, n - n // 6 + 1, n // 6)]
+    assert max(halves[2:]) < 1.5 * min(halves[2:]) + 0.05 and max(halves[2:]) < halves[1]
+    peak = {k: float(np.abs(out[k][0][early, 0] - X[early, 1]).max()) for k in ("nao_nguyen", "nao_nguyen_stepwise")}
+    assert abs(peak["nao_nguyen"] - peak["nao_nguyen_stepwise"]) < 0.05  # accumulation changes little here
+    ens = rms("nao_nguyen_ensemble", 0, X[:, 1])
+    assert abs(ens - nao_vy) < 0.02
+
+
+def test_mujoco_suite_rows(tmp_path) -> None:
+    import pandas as pd
+
+    from harness.pipeline import run_suite
+
+    names = ["nao_nguyen", "nao_nguyen_ensemble"]
+    out = run_suite(scenarios=["fishhook", "mu_step"], observers=names, render=False, out=tmp_path / "run",
+                    progress=False)
+    m = pd.read_csv(out / "metrics.csv")
+    for sc in ("fishhook", "mu_step"):
+        for n in names:
+            rows = m[(m["scenario"] == sc) & (m["observer"] == n)].set_index("state")
+            assert set(rows.index) == {"vy_mps", "yaw_rate_radps", "beta_rad"} and rows["certified"].all()
+            assert np.isfinite(rows.loc["vy_mps", "rmse"])
