@@ -217,7 +217,7 @@ def _channel_fields(c: Fields, signal: str) -> ChannelSpec:
         if cutoff is not None and how != "derivative":
             raise c.fail("cutoff_hz", f"only the derivative has a cut-off, not {how}")
         expr = derivation_expression(how, of, cutoff)
-        note = f"derive: {how} ({DERIVATIONS[how][2]})"
+        note = f"derived by '{how}': {DERIVATIONS[how][2]}"
     if expr:
         try:
             e = parse_expression(expr)
