@@ -117,10 +117,17 @@ class Space:
         return {p.name: p.fixed for p in self.parameters if not p.searched}
 
     def nominal_point(self) -> dict[str, Any] | None:
-        """Every searched parameter at its nominal, or None if one has no nominal."""
-        if any(p.nominal is None for p in self.searched):
+        """Every searched parameter at its nominal (one without: the middle of its range, its first
+        choice), or None if no parameter has a nominal."""
+        if all(p.nominal is None for p in self.searched):
             return None
-        return {**{p.name: p.nominal for p in self.searched}, **self.fixed_values()}
+
+        def value(p: Parameter) -> Any:
+            if p.nominal is not None:
+                return p.nominal
+            return p.choices[0] if p.categorical else 0.5 * (p.low + p.high)
+
+        return {**{p.name: value(p) for p in self.searched}, **self.fixed_values()}
 
     def distance(self, point: dict[str, Any]) -> float:
         """Normalised distance of a point from the nominal (the parameters with a nominal only)."""
