@@ -370,7 +370,8 @@ def _scenario_seconds(run_dir: Path) -> dict[str, float]:
 def run_check(*, thresholds: Path | None, baseline: Path | None, junit: Path | None, suite_name: str = "ci",
               scenarios: list[str] | None = None, observers: list[str] | None = None, seed: int | None = None,
               jobs: int = 1, out: Path = Path("reports/check"),
-              observer_timeout_s: float | None = None) -> CheckResult:
+              observer_timeout_s: float | None = None, observer_options: dict[str, dict[str, Any]] | None = None,
+              table_format: str = "csv") -> CheckResult:
     """Run a suite (no rendering) into ``out`` and judge it; ``roadtruth check``.
 
     Parameters
@@ -378,8 +379,10 @@ def run_check(*, thresholds: Path | None, baseline: Path | None, junit: Path | N
     thresholds : thresholds YAML (None = the shipped ``harness/thresholds/ci.yaml``).
     baseline : a previous ``metrics.csv`` (or a run folder holding one); None = no regression checks.
     junit : where to write a JUnit XML report (None = none).
-    suite_name, scenarios, observers, seed, jobs, observer_timeout_s : as ``roadtruth run``.
-    out : the run folder (``run_suite`` output plus ``check.csv``, every outcome).
+    suite_name, scenarios, observers, seed, jobs, observer_timeout_s, observer_options, table_format :
+        as ``roadtruth run`` (``harness.pipeline.run_suite``).
+    out : the run folder (``run_suite`` output plus ``check.csv``, every outcome; ``check.parquet``
+        with ``table_format="parquet"``).
 
     Returns
     -------
@@ -398,6 +401,9 @@ def run_check(*, thresholds: Path | None, baseline: Path | None, junit: Path | N
     from harness.outdir import check_output_dir, check_writable, claim
     from harness.pipeline import run_suite
     from harness.report.rundata import read_run_json, write_csv
+    from harness.table_io import check_format, table_file, write_parquet_table
+
+    check_format(table_format)
 
     spec = load_thresholds(Path(thresholds) if thresholds is not None else DEFAULT_THRESHOLDS)
     base = load_baseline(Path(baseline), spec.regression.metrics) if baseline is not None else None
@@ -406,16 +412,20 @@ def run_check(*, thresholds: Path | None, baseline: Path | None, junit: Path | N
     if junit is not None:
         check_writable(junit, what="--junit", folder=False)
     run_dir = run_suite(scenarios=scenarios, suite_name=suite_name, observers=observers, seed=seed, jobs=jobs,
-                        out=Path(out), render=False, progress=None, observer_timeout_s=observer_timeout_s)
-    metrics = read_metrics_file(run_dir / "metrics.csv")  # the validation a baseline gets, too
+                        out=Path(out), render=False, progress=None, observer_timeout_s=observer_timeout_s,
+                        observer_options=observer_options, table_format=table_format)
+    metrics = read_metrics_file(run_dir)  # the validation a baseline gets, too
     run_json = read_run_json(run_dir)
     outcomes = simulation_outcomes(run_json.get("scenarios", []))
     outcomes += evaluate(metrics, spec, base, spec.regression, known=known_universe())
     result = CheckResult.from_outcomes(outcomes, run_dir)
 
-    tmp = run_dir / ".check.csv.partial"
-    write_csv(outcomes_frame(outcomes), tmp)
-    os.replace(tmp, run_dir / "check.csv")
+    name = table_file(run_dir, "check", table_format).name
+    tmp = run_dir / f".{name}.partial"
+    (write_parquet_table if table_format == "parquet" else write_csv)(outcomes_frame(outcomes), tmp)
+    os.replace(tmp, run_dir / name)
+    if name != "check.csv":
+        claim(run_dir, [name])  # ours: a later check may replace the folder with it
     write_atomic(run_dir / "check.json", json.dumps({
         "thresholds": str(spec.source), "baseline": str(baseline) if baseline is not None else None,
         "passed": result.passed, "n_checks": result.n_checks, "n_failed": result.n_failed,

@@ -99,6 +99,26 @@ class _CacheDirAction(argparse.Action):
 _CACHE_HELP = "cache folder (default: $ROADTRUTH_CACHE, else the user cache folder)"
 
 
+def _add_format(sp: argparse.ArgumentParser) -> None:
+    sp.add_argument("--format", choices=("csv", "parquet"), default="csv", dest="table_format",
+                    help="format of the tables written (truth, measurements, estimates, metrics, ...): "
+                    "csv (default) or parquet (smaller, faster, exact floats)")
+
+
+def _add_observer_options(sp: argparse.ArgumentParser) -> None:
+    sp.add_argument("--observer-options", metavar="FILE.yaml",
+                    help="observer options: a YAML mapping observer -> {option: value}")
+    sp.add_argument("-O", dest="observer_option", action="append", metavar="OBSERVER.OPTION=VALUE",
+                    help="one observer option, e.g. -O kf_bicycle.meas_std_ay_mps2=1.5 (repeatable; "
+                    "overrides --observer-options; see `roadtruth observers --json` for each observer's options)")
+
+
+def _observer_options(a: argparse.Namespace) -> dict | None:
+    from harness.observer_options import options_from_cli
+
+    return options_from_cli(a.observer_options, a.observer_option) or None
+
+
 # ---- commands -----------------------------------------------------------------------------------
 
 def _cmd_run(a: argparse.Namespace) -> int:
@@ -107,7 +127,8 @@ def _cmd_run(a: argparse.Namespace) -> int:
     out = run_suite(scenarios=a.scenario, suite_name=a.suite, observers=a.observer, seed=a.seed,
                     jobs=a.jobs, out=Path(a.out), vehicle=a.vehicle, friction=a.friction,
                     sensors=a.sensors, faults=a.faults, log_rate_hz=a.log_rate, render=not a.no_render,
-                    progress=None, observer_timeout_s=a.observer_timeout)
+                    progress=None, observer_timeout_s=a.observer_timeout,
+                    observer_options=_observer_options(a), table_format=a.table_format)
     print(f"report: {out / 'index.html'}")
     return EXIT_OK
 
@@ -117,7 +138,7 @@ def _cmd_simulate(a: argparse.Namespace) -> int:
 
     out = simulate_to_dir(a.scenario, Path(a.out or f"reports/simulate-{Path(a.scenario).stem}"), vehicle=a.vehicle,
                           friction=a.friction, seed=a.seed, log_rate_hz=a.log_rate, sensors=a.sensors,
-                          faults=a.faults)
+                          faults=a.faults, table_format=a.table_format)
     print(f"wrote {out}")
     return EXIT_OK
 
@@ -191,7 +212,8 @@ def _cmd_check(a: argparse.Namespace) -> int:
                        baseline=Path(a.baseline) if a.baseline else None,
                        junit=Path(a.junit) if a.junit else None, suite_name=a.suite, scenarios=a.scenario,
                        observers=a.observer, seed=a.seed, jobs=a.jobs, out=Path(a.out),
-                       observer_timeout_s=a.observer_timeout)
+                       observer_timeout_s=a.observer_timeout, observer_options=_observer_options(a),
+                       table_format=a.table_format)
     print(result.summary())
     if not result.passed:
         raise CheckFailed(f"{result.n_failed} of {result.n_checks} checks failed (see {result.out})")
@@ -205,7 +227,8 @@ def _cmd_stress(a: argparse.Namespace) -> int:
                      frictions=parse_friction_list(a.friction) if a.friction else None,
                      faults=parse_fault_specs(a.faults) if a.faults else None,
                      seeds=a.seeds, base_seed=a.seed, jobs=a.jobs, dask=a.dask, out=Path(a.out), progress=None,
-                     fresh=a.fresh, observer_timeout_s=a.observer_timeout)
+                     fresh=a.fresh, observer_timeout_s=a.observer_timeout,
+                     observer_options=_observer_options(a), table_format=a.table_format)
     print(f"report: {out / 'index.html'}")
     return EXIT_OK
 
@@ -224,7 +247,8 @@ def _cmd_replay(a: argparse.Namespace) -> int:
     from harness.replay import replay
 
     out = replay(Path(a.log), vehicle=a.vehicle, columns=a.columns, observers=a.observer, out=Path(a.out),
-                 observer_timeout_s=a.observer_timeout, rate_hz=a.rate_hz)
+                 observer_timeout_s=a.observer_timeout, rate_hz=a.rate_hz,
+                 observer_options=_observer_options(a), table_format=a.table_format)
     print(f"report: {out / 'index.html'}")
     return EXIT_OK
 
@@ -258,6 +282,8 @@ def build_parser() -> argparse.ArgumentParser:
     common_sim(r)
     r.add_argument("--cache-dir", action=_CacheDirAction, help=_CACHE_HELP)
     r.add_argument("--observer-timeout", type=_timeout, metavar="SECONDS", help=_OBSERVER_TIMEOUT_HELP)
+    _add_observer_options(r)
+    _add_format(r)
     r.set_defaults(func=_cmd_run)
 
     s = sub.add_parser("simulate", help="ground truth and measurements only")
@@ -265,6 +291,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", help="output folder (default reports/simulate-SCENARIO)")
     s.add_argument("--log-rate", type=_rate, default=1000.0, help="truth.csv rate in Hz (default 1000)")
     common_sim(s)
+    _add_format(s)
     s.set_defaults(func=_cmd_simulate)
 
     for name, func, what in (("scenarios", _cmd_scenarios, "list scenarios"),
@@ -296,6 +323,8 @@ def build_parser() -> argparse.ArgumentParser:
     ck.add_argument("--out", default="reports/check", help="run folder (default reports/check)")
     ck.add_argument("--cache-dir", action=_CacheDirAction, help=_CACHE_HELP)
     ck.add_argument("--observer-timeout", type=_timeout, metavar="SECONDS", help=_OBSERVER_TIMEOUT_HELP)
+    _add_observer_options(ck)
+    _add_format(ck)
     ck.set_defaults(func=_cmd_check)
 
     st = sub.add_parser("stress", help="robustness sweeps: friction x faults x Monte Carlo seeds")
@@ -313,6 +342,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="recompute every case instead of loading the ones an earlier sweep finished")
     st.add_argument("--cache-dir", action=_CacheDirAction, help=_CACHE_HELP)
     st.add_argument("--observer-timeout", type=_timeout, metavar="SECONDS", help=_OBSERVER_TIMEOUT_HELP)
+    _add_observer_options(st)
+    _add_format(st)
     st.set_defaults(func=_cmd_stress)
 
     fz = sub.add_parser("falsify", help="search roads, manoeuvres, faults and vehicles for the case that "
@@ -342,6 +373,8 @@ def build_parser() -> argparse.ArgumentParser:
     rl.add_argument("--out", default="reports/replay", help="output folder (default reports/replay)")
     rl.add_argument("--cache-dir", action=_CacheDirAction, help=_CACHE_HELP)
     rl.add_argument("--observer-timeout", type=_timeout, metavar="SECONDS", help=_OBSERVER_TIMEOUT_HELP)
+    _add_observer_options(rl)
+    _add_format(rl)
     rl.set_defaults(func=_cmd_replay)
     return p
 

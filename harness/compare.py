@@ -250,8 +250,8 @@ def compare(dir_a: Path, dir_b: Path, out: Path | None = None) -> Comparison:
         folder or a malformed metrics file raises ``MetricsFileError`` (an InputError).
     out : optional folder for ``compare.csv`` and ``compare.html`` (written atomically).
     """
-    a = read_metrics_file(Path(dir_a) / "metrics.csv" if Path(dir_a).is_dir() else Path(dir_a))
-    b = read_metrics_file(Path(dir_b) / "metrics.csv" if Path(dir_b).is_dir() else Path(dir_b))
+    a = read_metrics_file(Path(dir_a))  # a run folder (metrics.csv or metrics.parquet) or the file
+    b = read_metrics_file(Path(dir_b))
     run_a = read_run_json(Path(dir_a)) if Path(dir_a).is_dir() else {}
     run_b = read_run_json(Path(dir_b)) if Path(dir_b).is_dir() else {}
     metrics = [m for m in COMPARED if m in a.columns or m in b.columns]

@@ -51,8 +51,10 @@ class MetricsFileError(InputError):
 
 def metrics_path(path: Path) -> Path:
     """``path`` itself when it is a file, else ``path/metrics.csv`` (a run folder)."""
+    from harness.table_io import table_path
+
     p = Path(path)
-    return p / "metrics.csv" if p.is_dir() else p
+    return (table_path(p, "metrics") or p / "metrics.csv") if p.is_dir() else p
 
 
 def read_metrics_file(path: Path, *, required: tuple[str, ...] = (), finite: tuple[str, ...] = (),
@@ -77,6 +79,8 @@ def read_metrics_file(path: Path, *, required: tuple[str, ...] = (), finite: tup
     error
         One line: ``<file>: <column>: <what> on line N (got '<cell>')``.
     """
+    from harness.table_io import format_of, read_table_as_text
+
     p = metrics_path(Path(path))
     src = str(p)
     if not p.is_file():
@@ -85,10 +89,11 @@ def read_metrics_file(path: Path, *, required: tuple[str, ...] = (), finite: tup
         raise error(f"{where} (expected a metrics.csv or a run folder)", source=src)
     try:
         # Every cell as text first, so that the checks below see exactly what the file holds.
-        raw = pd.read_csv(p, dtype=str, keep_default_na=False, na_filter=False)
+        # (a metrics.parquet of ``--format parquet`` is read the same way, each value as its text)
+        raw = read_table_as_text(p)
     except (ValueError, pd.errors.ParserError, UnicodeDecodeError, OSError) as e:
         first = str(e).splitlines()[0] if str(e) else type(e).__name__
-        raise error(f"unreadable CSV ({first})", source=src) from None
+        raise error(f"unreadable {'Parquet' if format_of(p) == 'parquet' else 'CSV'} ({first})", source=src) from None
     raw.columns = [str(c) for c in raw.columns]
     for col in dict.fromkeys((*REQUIRED, *required)):
         if col not in raw.columns:

@@ -14,8 +14,9 @@ Folder written (``out``), like a one-scenario ``run`` whose scenario is the log'
     metrics.csv  run.json  index.html
     <log>/truth.csv         the log's reference channels on the log's own time base (+ segment)
     <log>/measurements.csv  what the observers were fed, per run segment (+ segment, log_valid)
-    <log>/estimates.csv     t_s, observer, state, value, lo, hi (+ var, segment)
+    <log>/estimates.csv     wide: t_s, segment, <observer>.<state> (+ _lo, _hi, _var), one row per step
     <log>/segments.csv      every segment, run or skipped, with the reason
+    (``.parquet`` instead of ``.csv`` for every table with ``table_format="parquet"``)
     <log>/events.json       skipped segments as report events
     <log>/scenario.json     what the report shows about the log
 
@@ -40,11 +41,14 @@ import numpy as np
 import pandas as pd
 
 from harness.errors import LogError
+from harness.observer_options import check_observer_options, options_record
 from harness.outdir import atomic_output_dir, check_output_dir
+from harness.progress import Progress as ProgressBar
 from harness.replay_checks import CheckResult, check_consistency
 from harness.replay_log import ColumnMap, apply_map, identity_map, load_column_map, read_log, resolve_vehicle
 from harness.replay_segments import RUN, Segment, segment_log, segment_measurements, segments_frame
-from harness.report.rundata import git_revision, versions, write_csv, write_json
+from harness.report.rundata import git_revision, versions, write_json
+from harness.table_io import TableWriter, WideEstimates, check_format, write_table
 from harness.vehicle import VehicleParams, load_vehicle
 
 Progress = Callable[[str], None]
@@ -205,6 +209,8 @@ def replay(
     progress: Progress | None = None,
     observer_timeout_s: float | None = None,
     rate_hz: float | None = None,
+    observer_options: dict[str, dict[str, Any]] | None = None,
+    table_format: str = "csv",
 ) -> Path:
     """Run observers on a recorded log and score them against its reference channels.
 
@@ -225,11 +231,17 @@ def replay(
     out : Path
         Output folder, replaced atomically when complete.
     progress : callable, optional
-        Called with one line per step.
+        Called with one line per step. Without it, a bar on a terminal and one line per segment and
+        observer on stderr otherwise (``harness.progress.Progress``).
     observer_timeout_s : float, optional
         Wall-time budget of each observer per segment [s] (default: max(60 s, 20 × the segment's duration)).
     rate_hz : float, optional
         Sample rate [Hz] of a log without a time column (``t = k / rate_hz``).
+    observer_options : mapping, optional
+        Observer -> {option: value} (``harness.observer_options``), checked before the log is read and
+        recorded in run.json.
+    table_format : str
+        ``"csv"`` (default) or ``"parquet"`` for every table written (``harness.table_io``).
 
     Returns
     -------
@@ -239,39 +251,51 @@ def replay(
     from harness.estimate import run_observers
     from harness.report import build_report
     from harness.scoring import score
-    from observers.registry import available_observers
+    from observers.registry import available_observers, observer_class
 
     say = progress or (lambda _msg: None)
     t_wall = time.perf_counter()
     check_output_dir(out, inputs=[log, columns, vehicle])  # before any work: refusals and writability
     cmap = load_column_map(columns) if columns is not None else None
     veh: VehicleParams = load_vehicle(resolve_vehicle(vehicle, cmap), replay=True)
+    check_format(table_format)
+    names = list(dict.fromkeys(observers)) if observers else available_observers()
+    for name in names:
+        observer_class(name)  # an unknown observer is refused before the log is read
+    observer_options = check_observer_options(observer_options, names, veh)
     rl = prepare_log(Path(log), cmap, vehicle=veh, rate_hz=rate_hz)
     for note in rl.notes:  # derived channels and fields, warnings of the consistency checks
         print(f"roadtruth replay: note: {note}", file=sys.stderr)
     say(f"{rl.name}: {len(rl.frame)} rows, {len(rl.run_segments)} run segment(s), "
         f"{len(rl.segments) - len(rl.run_segments)} skipped")
 
-    est_parts: list[pd.DataFrame] = []
-    meas_parts: list[pd.DataFrame] = []
+    # Estimates are kept as float arrays per <observer>.<state> and segment (WideEstimates), not as
+    # a long frame with copies per segment: that is what made a long log's replay peak near 2 GB.
+    wide = WideEstimates()
     per_segment: list[tuple[int, dict[str, Any]]] = []
-    names = list(observers) if observers else available_observers()
     offsets = stitched_offsets(rl)
-    stitched_est: list[pd.DataFrame] = []
-    for s in rl.run_segments:
-        m = rl.measurements[s.index]
-        say(f"segment {s.index}: {s.t_start_s:.2f}–{s.t_end_s:.2f} s, {len(m)} steps")
-        est, runs = run_observers(m, veh, names, timeout_s=observer_timeout_s)
-        est = est.copy()
-        est["segment"] = s.index
-        est_parts.append(est)
-        shifted = est.copy()
-        shifted["t_s"] = shifted["t_s"] + offsets[s.index]
-        stitched_est.append(shifted)
-        meas_parts.append(m.assign(segment=s.index))
-        per_segment.append((s.index, dict(runs)))
+    bar = ProgressBar(len(rl.run_segments) * len(names), None, desc="roadtruth replay") if progress is None else None
+    try:
+        for s in rl.run_segments:
+            m = rl.measurements[s.index]
+            say(f"segment {s.index}: {s.t_start_s:.2f}–{s.t_end_s:.2f} s, {len(m)} steps")
+            seg_runs: dict[str, Any] = {}
+            t_seg = m["t_s"].to_numpy(float)
+            for name in names:  # one at a time: a line per observer, and its long frame freed at once
+                t_obs = time.perf_counter()
+                opts = {name: observer_options[name]} if name in observer_options else None
+                est, runs = run_observers(m, veh, [name], timeout_s=observer_timeout_s, options=opts)
+                wide.add(s.index, t_seg, est)
+                del est
+                seg_runs.update(runs)
+                if bar is not None:
+                    bar.item(f"segment {s.index} ({s.t_start_s:.0f}–{s.t_end_s:.0f} s): {name}: "
+                             f"{runs[name].status}, {time.perf_counter() - t_obs:.1f} s")
+            per_segment.append((s.index, seg_runs))
+    finally:
+        if bar is not None:
+            bar.close()
     runs_all = merge_runs(per_segment)
-    estimates = pd.concat(est_parts, ignore_index=True)
 
     ref = list(rl.column_map.reference)
     seg_of_row = np.full(len(rl.frame), -1, dtype=np.int64)
@@ -285,17 +309,22 @@ def replay(
         part["t_s"] = part["t_s"] + offsets[s.index]
         scoring_parts.append(part)
     scoring_truth = pd.concat(scoring_parts, ignore_index=True)
-    metrics = score(scoring_truth, pd.concat(stitched_est, ignore_index=True), scenario=rl.name,
-                    runs=runs_all, mass_kg=veh.mass_kg)
+    # Scored one observer at a time (score() treats observers independently: the same rows as one call).
+    scored = [score(scoring_truth, wide.long(name, offsets), scenario=rl.name, runs={name: run},
+                    mass_kg=veh.mass_kg) for name, run in runs_all.items()]
+    metrics = pd.concat(scored, ignore_index=True) if scored else score(
+        scoring_truth, wide.long("", offsets), scenario=rl.name, runs={}, mass_kg=veh.mass_kg)
 
     out = Path(out)
     with atomic_output_dir(out, command="replay", inputs=[log, columns, vehicle]) as tmp:
         sub = tmp / rl.name
         sub.mkdir()
-        write_csv(truth, sub / "truth.csv")
-        write_csv(pd.concat(meas_parts, ignore_index=True), sub / "measurements.csv")
-        write_csv(estimates, sub / "estimates.csv")
-        write_csv(segments_frame(rl.segments), sub / "segments.csv")
+        write_table(truth, sub, "truth", table_format)
+        with TableWriter(sub, "measurements", table_format) as meas_file:  # segment by segment, no concat copy
+            for s in rl.run_segments:
+                meas_file.write(rl.measurements[s.index].assign(segment=s.index))
+        write_table(wide.frame(), sub, "estimates", table_format)  # wide: one row per time step
+        write_table(segments_frame(rl.segments), sub, "segments", table_format)
         events = [{"t_s": s.t_start_s, "label": f"skipped: {s.reason.split(' (')[0]}"}
                   for s in rl.segments if s.status != RUN]
         write_json(events, sub / "events.json")
@@ -303,7 +332,7 @@ def replay(
         info = {"name": rl.name, "kind": "replay", "description": description, "vehicle": veh.name,
                 "duration_s": float(rl.frame["t_s"].iloc[-1] - rl.frame["t_s"].iloc[0]), "tags": ["replay"]}
         write_json(info, sub / "scenario.json")
-        write_csv(metrics, tmp / "metrics.csv")
+        write_table(metrics, tmp, "metrics", table_format)
         run_json = {
             "command": "replay",
             "log": str(Path(log).resolve()),
@@ -311,6 +340,8 @@ def replay(
             "input_checks": [c.to_dict() for c in rl.checks],
             "notes": list(rl.notes),
             "column_map": rl.column_map.to_dict(),
+            "table_format": table_format,
+            "observer_options": options_record(observer_options),
             "vehicle": veh.name,
             "vehicle_path": veh.path,
             "observers": _observer_table(list(runs_all)),

@@ -38,7 +38,8 @@ from harness.errors import InputError  # noqa: E402
 from harness.friction_map import friction_from_spec  # noqa: E402
 from harness.outdir import atomic_output_dir  # noqa: E402
 from harness.progress import Progress  # noqa: E402
-from harness.report.rundata import FLOAT_FORMAT, git_revision, versions, write_csv, write_json  # noqa: E402
+from harness.report.rundata import FLOAT_FORMAT, git_revision, versions, write_json  # noqa: E402
+from harness.table_io import check_format, write_table  # noqa: E402
 
 #: Label of "no override": the scenario's own friction map / no extra faults.
 SCENARIO_FRICTION = "scenario"
@@ -143,6 +144,8 @@ class StressCase:
     seed: int
     observers: tuple[str, ...]
     observer_timeout_s: float | None = None  # per-observer budget [s]; None = scaled with the duration
+    # Checked observer options (harness/observer_options.py): observer -> {option: value}; in the cache key.
+    observer_options: dict[str, dict[str, Any]] | None = None
 
 
 @dataclass(frozen=True)
@@ -180,8 +183,8 @@ def run_case(case: StressCase) -> CaseResult:
         scenario_seeds,
     )
     from harness.scoring import score
-
     from harness.truth_events import scored_until_of, status_of
+
     t0 = time.perf_counter()
     friction = None if case.friction == SCENARIO_FRICTION else case.friction
     faults = None if case.faults == NO_FAULTS else case.faults
@@ -198,7 +201,7 @@ def run_case(case: StressCase) -> CaseResult:
         mass = veh.mass_kg
         _, sim_seed, sensor_seed = scenario_seeds(sc.seed, case.scenario, case.seed)
         st = evaluate_scenario(sc, veh, case.observers, sim_seed, sensor_seed, faults=faults,
-                               observer_timeout_s=case.observer_timeout_s)
+                               observer_timeout_s=case.observer_timeout_s, observer_options=case.observer_options)
         truth, estimates, tb = st.truth, st.estimates, st.traceback
         if st.runs is not None:
             runs = st.runs
@@ -224,7 +227,8 @@ def run_case(case: StressCase) -> CaseResult:
 
 
 def build_cases(scenarios: list[str], frictions: list[str], faults: list[str], seeds: list[int],
-                observers: list[str], observer_timeout_s: float | None = None) -> list[StressCase]:
+                observers: list[str], observer_timeout_s: float | None = None,
+                observer_options: dict[str, dict[str, Any]] | None = None) -> list[StressCase]:
     """The Cartesian product scenarios × frictions × faults × seeds, in that nesting order."""
     cases: list[StressCase] = []
     for sc in scenarios:
@@ -233,7 +237,8 @@ def build_cases(scenarios: list[str], frictions: list[str], faults: list[str], s
                 for k, s in enumerate(seeds):
                     cases.append(StressCase(index=len(cases), scenario=sc, friction=fr, faults=fa,
                                             seed_index=k, seed=s, observers=tuple(observers),
-                                            observer_timeout_s=observer_timeout_s))
+                                            observer_timeout_s=observer_timeout_s,
+                                            observer_options=observer_options or None))
     return cases
 
 
@@ -323,7 +328,8 @@ def _case_keys(cases: list[StressCase]) -> dict[int, str]:
     keys = {}
     for c in cases:
         k = ck.key(c.scenario, None if c.friction == SCENARIO_FRICTION else c.friction,
-                   None if c.faults == NO_FAULTS else c.faults, c.seed, c.observers)
+                   None if c.faults == NO_FAULTS else c.faults, c.seed, c.observers,
+                   options=c.observer_options)
         if k is not None:
             keys[c.index] = k
     return keys
@@ -375,7 +381,8 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
                frictions: list[str] | None, faults: list[str] | None, seeds: int = 1,
                base_seed: int | None = None, jobs: int = 1, dask: str | None = None,
                out: Path = Path("reports/stress"), progress: bool | None = None, fresh: bool = False,
-               observer_timeout_s: float | None = None) -> Path:
+               observer_timeout_s: float | None = None,
+               observer_options: dict[str, dict[str, Any]] | None = None, table_format: str = "csv") -> Path:
     """Run a robustness sweep and write ``stress.csv``, ``summary.csv``, ``run.json``, ``index.html``.
 
     Parameters
@@ -395,6 +402,9 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
     progress : True = tqdm bar, False = one line per case, None = bar only on a terminal.
     observer_timeout_s : wall-time budget of each observer's design + run [s] (default: max(60 s,
         20 × the simulated duration)); over budget, the observer's rows say ``error: timed out after N s``.
+    observer_options : observer -> {option: value} (``harness.observer_options``), checked before any
+        work, recorded in run.json and part of every case's cache key.
+    table_format : ``"csv"`` (default) or ``"parquet"`` for ``stress`` and ``summary``.
     fresh : compute every case even when the case cache holds it (the cache is refreshed). Otherwise
         a case finished by an earlier sweep is loaded (:mod:`harness.stress_cache`): a rerun resumes,
         a wider sweep computes only its new cases, and the files are the same bytes either way.
@@ -422,9 +432,15 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
         raise StressSpecError(f"must be >= 0 (got {base})", field="--seed")
     fr_list = list(dict.fromkeys(frictions)) if frictions else [SCENARIO_FRICTION]
     fa_list = [NO_FAULTS if f.lower() == NO_FAULTS else f for f in dict.fromkeys(faults)] if faults else [NO_FAULTS]
+    check_format(table_format)
     names, chosen = _resolve(scenarios, suite_name, observers, fr_list, fa_list)
+    from harness.observer_options import check_observer_options, options_record
+    from harness.pipeline import prepare_scenario
+
+    observer_options = check_observer_options(observer_options, chosen,
+                                              prepare_scenario(names[0], None, None).vehicle_params())
     seed_values = monte_carlo_seeds(base, n_seeds)
-    cases = build_cases(names, fr_list, fa_list, seed_values, chosen, observer_timeout_s)
+    cases = build_cases(names, fr_list, fa_list, seed_values, chosen, observer_timeout_s, observer_options)
     keys = _case_keys(cases)
     results: dict[int, CaseResult] = {} if fresh else _load_cached(cases, keys)
     todo = [c for c in cases if c.index not in results]
@@ -447,9 +463,9 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
                          f"{r.seconds:.1f} s")
             run_s = time.perf_counter() - t_run
             rows = pd.concat([results[c.index].rows for c in cases], ignore_index=True)
-            write_csv(rows, tmp / "stress.csv")
+            write_table(rows, tmp, "stress", table_format)
             summary = summarize(rows)
-            write_csv(summary, tmp / "summary.csv")
+            write_table(summary, tmp, "summary", table_format)
             case_s = [results[c.index].seconds for c in todo]
             run_json = {
                 "command": "stress", "suite": suite_name if not scenarios else None, "scenarios": names,
@@ -457,7 +473,8 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
                 "base_seed": base, "seed_values": seed_values, "n_cases": len(cases), "jobs": jobs,
                 "executor": ("dask " + dask) if dask else ("processes" if jobs > 1 else "in-process"),
                 "dask": {"workers": dask_info["workers"]} if "workers" in dask_info else None,
-                "float_format": FLOAT_FORMAT,
+                "float_format": FLOAT_FORMAT, "table_format": table_format,
+                "observer_options": options_record(observer_options),
                 "case_errors": {str(c.index): results[c.index].traceback for c in cases
                                 if results[c.index].traceback},
                 "versions": versions(), "git_revision": git_revision(),

@@ -6,7 +6,8 @@ one more μ) recomputes only the cases it does not share:
 
 * the content of the prepared scenario (friction override applied; its file location left out),
   the vehicle parameters, the sensor suite with its faults, the case's seed;
-* the observers by name plus the source file of each observer class (plug-ins included);
+* the observers by name plus the source file of each observer class (plug-ins included), and the
+  observer options given (``--observer-options``, ``-O``);
 * the source of the installed roadtruth packages (every file of ``harness``, ``observers``,
   ``mjcf``: code, shipped scenarios, vehicles, sensor presets) and the versions of Python and of the
   packages that change results (MuJoCo, NumPy, SciPy, pandas, numba, cvxpy).
@@ -145,8 +146,11 @@ class CaseKeys:
         self._observers: dict[str, str] = {}
 
     def key(self, scenario: str, friction: str | None, faults: str | None, seed: int,
-            observers: tuple[str, ...]) -> str | None:
-        """The key of one case, or None when some input cannot be keyed exactly (then: no caching)."""
+            observers: tuple[str, ...], options: Mapping[str, Mapping[str, Any]] | None = None) -> str | None:
+        """The key of one case, or None when some input cannot be keyed exactly (then: no caching).
+
+        ``options``: the checked observer options (observer -> {option: value}); they change results.
+        """
         from harness.pipeline import prepare_scenario, sensor_config
 
         try:
@@ -162,9 +166,15 @@ class CaseKeys:
                     self._observers[o] = _observer_source(o)
         except Uncacheable:
             return None
-        return content_digest({**self._base, "scenario": self._scenario[(scenario, friction)],
+        key: dict[str, Any] = {**self._base, "scenario": self._scenario[(scenario, friction)],
                                "sensors": self._sensors[(scenario, faults)], "seed": int(seed),
-                               "observers": [(o, self._observers[o]) for o in observers]})
+                               "observers": [(o, self._observers[o]) for o in observers]}
+        if options:  # only when given, so a sweep without options keeps its keys
+            key["observer_options"] = {str(o): dict(v) for o, v in options.items() if v}
+        try:
+            return content_digest(key)
+        except Uncacheable:
+            return None
 
 
 # ---- rows on disk --------------------------------------------------------------------------------

@@ -13,6 +13,7 @@ import pytest
 
 from harness.errors import InputError
 from harness.scoring import COLUMNS
+from harness.table_io import read_estimates
 
 pytestmark = pytest.mark.slow
 
@@ -80,7 +81,7 @@ def test_every_file_exists_and_is_well_formed(runs: tuple[Path, Path, list[str]]
         for c in valid:
             assert set(meas[c].unique()) <= {0, 1}
         assert meas.loc[meas.imu_valid == 0, "yaw_rate_radps"].isna().all()  # missing = empty cell
-        est = pd.read_csv(d / "estimates.csv")
+        est = read_estimates(d)  # wide on disk; the long frame
         assert {"t_s", "observer", "state", "value", "lo", "hi"} <= set(est.columns)
         assert set(est.observer) <= set(observers)
         events = json.loads((d / "events.json").read_text())

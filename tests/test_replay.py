@@ -13,6 +13,7 @@ import pytest
 from harness.cli import main
 from harness.errors import LogError
 from harness.replay import prepare_log, replay
+from harness.table_io import read_estimates
 
 REVS_NAME = "revs_250lm_2014-02-22"
 DEG = math.pi / 180.0
@@ -58,7 +59,7 @@ def test_linear_kf_beta_error_on_the_revs_log(revs_run: Path) -> None:
     assert 0.1 * DEG < kf.rmse < 2.0 * DEG
     assert abs(kf.bias) < kf.rmse and kf.max_abs < 10 * DEG
     # the metric is the RMS of estimate - reference over the log: recompute it from the files
-    est = pd.read_csv(revs_run / REVS_NAME / "estimates.csv")
+    est = read_estimates(revs_run / REVS_NAME)
     truth = pd.read_csv(revs_run / REVS_NAME / "truth.csv")
     b = est[(est.observer == "kf_bicycle") & (est.state == "beta_rad")]
     np.testing.assert_array_equal(b.t_s.to_numpy(), truth.t_s.to_numpy())
@@ -106,7 +107,7 @@ def test_skipped_segments_are_reported_and_never_scored(tmp_path: Path) -> None:
     assert [s["reason"].split(" ")[0] for s in run["skipped_segments"]] == ["standstill", "gap"]
     html = (out / "index.html").read_text()
     assert "2 skipped" in html and "standstill" in html
-    est = pd.read_csv(out / "stopgo" / "estimates.csv")
+    est = read_estimates(out / "stopgo")
     t = est.t_s.to_numpy()
     assert not ((t >= 10.0) & (t < 14.0)).any()  # nothing estimated at standstill …
     assert not ((t > 20.0) & (t < 22.99)).any()  # … nor inside the gap
@@ -133,8 +134,8 @@ def test_observers_are_reset_at_each_segment_start(tmp_path: Path) -> None:
     log[log.t_s >= 14.0].iloc[:600].to_csv(part, index=False)  # the second driving stretch alone
     a = replay(whole, vehicle="ferrari_250lm", observers=["kf_bicycle"], out=tmp_path / "a")
     b = replay(part, vehicle="ferrari_250lm", observers=["kf_bicycle"], out=tmp_path / "b")
-    ea = pd.read_csv(a / "whole" / "estimates.csv")
-    eb = pd.read_csv(b / "part" / "estimates.csv")
+    ea = read_estimates(a / "whole")
+    eb = read_estimates(b / "part")
     ea = ea[(ea.segment == 2) & (ea.t_s <= eb.t_s.max())].reset_index(drop=True)
     eb = eb.reset_index(drop=True)
     # the same estimates as a fresh run on that stretch: nothing carried over from before the stop

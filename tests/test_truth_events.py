@@ -12,6 +12,7 @@ import pytest
 
 from harness import scoring, truth_events
 from harness.road import Road
+from harness.table_io import read_estimates
 from harness.truth_events import TruthEvent, detect_events, detect_wheel_lift, scoring_end_s, truth_status
 
 DT = 0.001
@@ -159,7 +160,7 @@ def test_a_spin_out_is_an_event_and_ends_scoring(tmp_path: Path):
 
     # RMSE of beta over the scored window, by hand from the written estimates
     est_path = next(p for p in tmp_path.rglob("estimates.csv"))
-    est = pd.read_csv(est_path)
+    est = read_estimates(est_path.parent)
     est = est[(est["observer"] == "kf_bicycle") & (est["state"] == "beta_rad")].sort_values("t_s")
     te, ve = est["t_s"].to_numpy(), est["value"].to_numpy()
     idx = np.searchsorted(te, t + 1e-9, side="right") - 1

@@ -1,7 +1,10 @@
 """Reading a run folder back: what the report (and ``compare``) may rely on, and nothing else.
 
 The report never re-simulates and never recomputes metrics: it reads ``run.json``, ``metrics.csv``
-and, per scenario, ``truth.csv``, ``estimates.csv``, ``events.json`` and ``scenario.json``.
+and, per scenario, ``truth.csv``, ``estimates.csv``, ``events.json`` and ``scenario.json``. Each table
+may be CSV or Parquet (``--format``; ``harness/table_io.py``), and ``estimates`` wide (one row per time
+step, ``<observer>.<state>`` columns) or long (runs written before the wide form): readers get the long
+frame either way.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import pandas as pd
 
 from harness.errors import InputError
 from harness.strict_yaml import short_repr
+from harness.table_io import estimates_long, format_of, is_wide, read_table, table_path, write_csv_table
 
 
 class RunFolderError(InputError):
@@ -69,8 +73,8 @@ def read_metrics(run_dir: Path) -> pd.DataFrame:
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise RunFolderError("not a run folder (does not exist)", source=str(run_dir))
-    path = run_dir / "metrics.csv"
-    if not path.is_file():
+    path = table_path(run_dir, "metrics")
+    if path is None:
         raise RunFolderError("missing metrics.csv (not a roadtruth run folder?)", source=str(run_dir))
     inside_folder(run_dir.resolve(), path)
     # The validation compare and check apply (columns, numbers, flags, no duplicate rows).
@@ -174,18 +178,21 @@ class ScenarioFiles:
             inside_folder(self.root, path)
         return path
 
-    def _csv(self, filename: str, required: tuple[str, ...], text: tuple[str, ...] = ()) -> pd.DataFrame:
-        """A CSV of the scenario; every column but ``text`` must hold numbers (empty = NaN)."""
-        path = self._path(filename)
+    def _table(self, name: str, required: tuple[str, ...], text: tuple[str, ...] = ()) -> pd.DataFrame:
+        """The table ``name`` of the scenario (``name.csv`` or ``name.parquet``); every column but
+        ``text`` must hold numbers (empty = NaN)."""
+        found = table_path(self.folder, name)
+        path = self._path(found.name) if found is not None else None
         if path is None:
             return pd.DataFrame()
         try:
-            frame = pd.read_csv(path)
+            frame = read_table(path)
         except pd.errors.EmptyDataError:
             raise RunFolderError("empty file (no header)", source=str(path)) from None
         except (ValueError, pd.errors.ParserError, UnicodeDecodeError, OSError) as e:
             first = str(e).splitlines()[0] if str(e) else type(e).__name__
-            raise RunFolderError(f"unreadable CSV ({first})", source=str(path)) from None
+            kind = "Parquet" if format_of(path) == "parquet" else "CSV"
+            raise RunFolderError(f"unreadable {kind} ({first})", source=str(path)) from None
         for col in required:
             if col not in frame.columns:
                 has = ", ".join(map(str, frame.columns[:12]))
@@ -202,6 +209,10 @@ class ScenarioFiles:
             frame[col] = values
         return frame
 
+    def _csv(self, filename: str, required: tuple[str, ...], text: tuple[str, ...] = ()) -> pd.DataFrame:
+        """Kept for callers that name the file: ``_table`` of its stem."""
+        return self._table(Path(filename).stem, required, text)
+
     def _json(self, filename: str, default: Any) -> Any:
         path = self._path(filename)
         if path is None:
@@ -211,12 +222,19 @@ class ScenarioFiles:
 
     @cached_property
     def truth(self) -> pd.DataFrame:
-        return self._csv("truth.csv", required=("t_s",))
+        return self._table("truth", required=("t_s",))
 
     @cached_property
     def estimates(self) -> pd.DataFrame:
-        return self._csv("estimates.csv", required=("t_s", "observer", "state", "value"),
-                         text=("observer", "state"))
+        """Long ``t_s, observer, state, value, lo, hi, var`` whether the file is wide or long."""
+        found = table_path(self.folder, "estimates")
+        if found is None:
+            return pd.DataFrame()
+        head = read_table(found, nrows=0) if format_of(found) == "csv" else None
+        if head is not None and not is_wide(head):  # a run written before the wide form
+            return self._table("estimates", required=("t_s", "observer", "state", "value"),
+                               text=("observer", "state"))
+        return estimates_long(self._table("estimates", required=("t_s",)))
 
     @cached_property
     def events(self) -> list[dict[str, Any]]:
@@ -344,8 +362,9 @@ def new_scenario_folder(run_dir: Path, name: str) -> tuple[str, Path]:
 
 
 def write_csv(frame: pd.DataFrame, path: Path) -> None:
-    """A frame as CSV with the fixed float format; NaN is an empty cell."""
-    frame.to_csv(path, index=False, float_format=FLOAT_FORMAT, na_rep="", lineterminator="\n")
+    """A frame as CSV with the fixed float format; NaN is an empty cell (``harness.table_io``: the
+    same bytes as ``to_csv(float_format=FLOAT_FORMAT)``, written faster and in blocks)."""
+    write_csv_table(frame, path)
 
 
 def _jsonable(x: Any) -> Any:
