@@ -24,6 +24,7 @@ import inspect
 import itertools
 import json
 import math
+import os
 import time
 import warnings
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -355,10 +356,37 @@ def design_key(payload: Mapping[str, Any]) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+#: Designs shipped with the package (``scripts/ship_designs.py`` writes them for the shipped vehicles
+#: with default options): same entry format and digest check as the user cache, read after it, so a
+#: fresh install runs the default suite without solving an SDP. A key is a hash of everything the
+#: design depends on, source code included, so an edited design module simply misses them.
+SHIPPED_DESIGNS_DIR = Path(__file__).resolve().parent / "designs"
+#: Set to ``0`` to ignore the shipped designs (tests of the design code itself do).
+SHIPPED_DESIGNS_ENV = "ROADTRUTH_SHIPPED_DESIGNS"
+
+
+def _design_folders(folder: Path | None) -> list[Path]:
+    if folder is not None:
+        return [folder]
+    folders = [design_cache_dir()]
+    if os.environ.get(SHIPPED_DESIGNS_ENV, "1").strip() != "0":
+        folders.append(SHIPPED_DESIGNS_DIR)
+    return folders
+
+
 def load_design(key: str, folder: Path | None = None) -> DesignResult | None:
-    """The cached design of ``key``, or None when absent, unreadable, edited (digest mismatch) or
-    inconsistent (a ``certified`` flag that disagrees with the status)."""
-    data = read_entry(folder or design_cache_dir(), key)
+    """The cached design of ``key`` (the user cache, then the shipped designs; or only ``folder``),
+    or None when absent, unreadable, edited (digest mismatch) or inconsistent (a ``certified`` flag
+    that disagrees with the status)."""
+    for where in _design_folders(folder):
+        result = _load_design_from(where, key)
+        if result is not None:
+            return result
+    return None
+
+
+def _load_design_from(folder: Path, key: str) -> DesignResult | None:
+    data = read_entry(folder, key)
     try:
         result = DesignResult.from_json_dict(data["design"])  # type: ignore[index]
     except (ValueError, KeyError, TypeError):

@@ -29,9 +29,11 @@ def _session_cache(tmp_path_factory: pytest.TempPathFactory):
 
 @pytest.fixture(scope="module")
 def isolated_design_cache(tmp_path_factory: pytest.TempPathFactory):
-    """A fresh LMI design cache per test module, so tests never read designs another module left."""
+    """A fresh LMI design cache per test module, so tests never read designs another module left
+    (nor the designs shipped with the package: these tests exercise the design code itself)."""
     mp = pytest.MonkeyPatch()
     mp.setenv("ROADTRUTH_CACHE", str(tmp_path_factory.mktemp("designs")))
+    mp.setenv("ROADTRUTH_SHIPPED_DESIGNS", "0")
     yield
     mp.undo()
 

@@ -24,6 +24,7 @@ REJECTED = "interval_wang_printed"
 def cache_root(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     root = tmp_path / "cache"
     monkeypatch.setenv(CACHE_ENV, str(root))
+    monkeypatch.setenv(lmi.SHIPPED_DESIGNS_ENV, "0")
     lmi.clear_memory_cache()
     yield root
     lmi.clear_memory_cache()
@@ -123,3 +124,36 @@ def test_cache_dir_option_sets_the_cache_for_the_command(tmp_path: Path, monkeyp
     with pytest.raises(SystemExit) as info:
         build_parser().parse_args(["run", "--cache-dir", str(tmp_path / "afile")])
     assert info.value.code == 2
+
+
+def test_shipped_designs_are_read_after_the_user_cache_and_checked_like_it(
+        cache_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A design shipped with the package is used on a fresh install (empty user cache), only when its
+    digest matches, and not at all with ROADTRUTH_SHIPPED_DESIGNS=0."""
+    v = load_vehicle("sedan")
+    solved = create(REJECTED, v).design()
+    shipped = tmp_path / "shipped"
+    shipped.mkdir()
+    for f in (cache_root / "designs").iterdir():  # what scripts/ship_designs.py copies
+        (shipped / f.name).write_bytes(f.read_bytes())
+    for f in (cache_root / "designs").iterdir():
+        f.unlink()
+    monkeypatch.setattr(lmi, "SHIPPED_DESIGNS_DIR", shipped)
+    monkeypatch.setenv(lmi.SHIPPED_DESIGNS_ENV, "1")
+    lmi.clear_memory_cache()
+    hit = create(REJECTED, v).design()
+    assert hit.from_cache and hit == solved and not hit.certified
+    # an edited shipped entry is ignored (solved again), exactly like an edited user-cache entry
+    _tamper(next(shipped.glob("*.json")), certified=True)
+    for f in (cache_root / "designs").glob("*"):
+        f.unlink()
+    lmi.clear_memory_cache()
+    again = create(REJECTED, v).design()
+    assert not again.from_cache and again.certified is False
+    # and switched off, a valid shipped entry is not read at all
+    for f in (cache_root / "designs").iterdir():
+        (shipped / f.name).write_bytes(f.read_bytes())
+        f.unlink()
+    assert lmi.load_design(hit.key) is not None
+    monkeypatch.setenv(lmi.SHIPPED_DESIGNS_ENV, "0")
+    assert lmi.load_design(hit.key) is None

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from collections.abc import Callable
 
 import numpy as np
@@ -256,8 +257,13 @@ def test_car_following_scores_lead_acceleration(car_following_run: tuple) -> Non
     for name in CF_NAMES:
         rows = metrics[metrics["observer"] == name].set_index("state")
         assert list(rows.index) == ["range_m", "range_rate_mps", "lead_accel_mps2"]
-        assert (rows["status"] == "ok").all() and rows["certified"].all(), rows
+        assert rows["certified"].all(), rows
+        # The verdicts say what happened: the range is usable, the lead acceleration is worse than
+        # assuming a_L = 0 ("unusable", with the ratio of the two RMS errors)
+        assert rows.loc["range_m", "status"] == "ok", rows["status"]
         acc = rows.loc["lead_accel_mps2"]
+        ratio = float(re.match(r"unusable \(RMS error ([\d.]+)×", acc["status"]).group(1))
+        assert ratio == pytest.approx(acc["rmse"] / rms_a, rel=0.05, abs=0.05), acc["status"]
         assert np.isfinite(acc["rmse"]) and acc["n_scored"] == rows.loc["range_m", "n_scored"] == 10001
         # scored from the first sample (t = 0): the placeholder 0 held until the first radar sample
         # (50 ms latency) is the range's largest error, ~30 m, and its p95 stays a radar-noise figure

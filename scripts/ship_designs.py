@@ -1,0 +1,64 @@
+"""Write the certified LMI designs of the shipped vehicles into ``observers/designs/`` (package data).
+
+    python scripts/ship_designs.py [--vehicles sedan,...]
+
+Every registered observer is designed with its default options on each vehicle in a scratch cache;
+the entries (``<key>.json`` + ``<key>.sha256``, the format of :mod:`harness.disk_cache`) are copied
+into ``observers/designs/``, whose previous entries are replaced (the folder holds nothing else).
+A design key hashes the design's inputs and source code, so after editing an observer or design
+module, run this again; a stale entry is never used, only missed (the design is then solved at run
+time and cached in the user cache folder as before).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--vehicles", default="sedan", help="comma-separated vehicle sets (default sedan)")
+    a = p.parse_args(argv)
+    scratch = Path(tempfile.mkdtemp(prefix="roadtruth-designs-"))
+    os.environ["ROADTRUTH_CACHE"] = str(scratch)
+    os.environ["ROADTRUTH_SHIPPED_DESIGNS"] = "0"
+    sys.path.insert(0, str(ROOT))
+    from harness.vehicle import load_vehicle
+    from observers.lmi import SHIPPED_DESIGNS_DIR
+    from observers.registry import available_observers, create
+
+    total = 0.0
+    for vname in [v.strip() for v in a.vehicles.split(",") if v.strip()]:
+        veh = load_vehicle(vname)
+        for name in available_observers():
+            t = time.perf_counter()
+            try:
+                status = create(name, veh).design().status.value
+            except Exception as exc:  # noqa: BLE001 - report and go on; nothing is shipped for it
+                status = f"error: {type(exc).__name__}: {exc}"[:120]
+            dt = time.perf_counter() - t
+            total += dt
+            print(f"{vname:<14} {name:<38} {dt:7.2f} s  {status}", flush=True)
+    entries = sorted((scratch / "designs").glob("*.json")) if (scratch / "designs").is_dir() else []
+    shutil.rmtree(SHIPPED_DESIGNS_DIR, ignore_errors=True)
+    SHIPPED_DESIGNS_DIR.mkdir(parents=True)
+    for entry in entries:
+        digest = entry.with_suffix(".sha256")
+        if digest.is_file():
+            shutil.copy2(entry, SHIPPED_DESIGNS_DIR / entry.name)
+            shutil.copy2(digest, SHIPPED_DESIGNS_DIR / digest.name)
+    shutil.rmtree(scratch, ignore_errors=True)
+    print(f"shipped {len(entries)} designs in {SHIPPED_DESIGNS_DIR} ({total:.0f} s of solving)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
