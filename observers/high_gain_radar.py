@@ -57,7 +57,7 @@ from typing import Any
 import numpy as np
 
 from harness.errors import InputError
-from observers.base import ScalarLoopObserver
+from observers.base import EstimateTrack, ScalarLoopObserver
 from observers.lmi import DesignFailed, DesignResult, DesignStatus
 from observers.registry import register
 
@@ -195,6 +195,11 @@ class HighGainRadarStandard(ScalarLoopObserver):
         super().reset(t0_s, x0)
         if x0:
             self._started = True
+
+    def run(self, t: np.ndarray, Y: np.ndarray, x0: Mapping[str, float] | None = None) -> EstimateTrack:
+        """Compiled loop (:mod:`observers.high_gain_radar_loop`), equal to stepping :meth:`step`."""
+        from observers.high_gain_radar_loop import run_compiled
+        return run_compiled(self, t, Y, x0)
 
     def _advance(self, t_s: float, y: list[float]) -> None:
         prev_y, prev_z, prev_e = self._u[0], self._u[1], self._u[3]
