@@ -61,18 +61,23 @@ class ObserverRun:
     detail: str = ""         # why it diverged, where it did
 
 
-def _diverged(track_x: np.ndarray, t: np.ndarray, states: tuple[str, ...]) -> str | None:
+def _diverged(track_x: np.ndarray, t: np.ndarray, states: tuple[str, ...], withholds: bool = False) -> str | None:
     """A reason if the estimates are non-finite or absurd for a long stretch, else None.
 
-    Leading NaN rows are allowed: an observer that has not had its first measurement yet (a radar
-    observer before the first radar sample) has no estimate, which is not a divergence; scoring starts
-    at its first estimate. Once all states are finite, a non-finite value means divergence.
+    ±inf is divergence. NaN is "no estimate": before an observer's first measurement (a radar
+    observer before the first radar sample; scoring starts at its first estimate) or, for an observer
+    that withholds estimates without input (``Observer.withholds_estimates``), during a gap; scoring
+    counts it as missing (``diverged (no estimate for x % of the time)`` past a small fraction).
+    For any other observer a NaN after its first estimate is a numerical failure: divergence.
     """
+    if np.isinf(track_x).any():
+        bad = int(np.argmax(np.isinf(track_x).any(axis=1)))
+        return f"infinite estimate at t={t[bad]:.3f} s"
     finite_rows = np.all(np.isfinite(track_x), axis=1)
     if track_x.size and not finite_rows.any():
         return "no finite estimate at all"
     start = int(np.argmax(finite_rows)) if track_x.size else 0
-    if not np.all(finite_rows[start:]):
+    if not withholds and not np.all(finite_rows[start:]):
         bad = start + int(np.argmax(~finite_rows[start:]))
         return f"non-finite estimate at t={t[bad]:.3f} s"
     for j, s in enumerate(states):
@@ -153,7 +158,7 @@ def run_observers(measurements: pd.DataFrame, vehicle: VehicleParams, names: lis
             continue
         track = reply.track
         n = len(t)
-        why = _diverged(track.x, t, track.states)
+        why = _diverged(track.x, t, track.states, bool(getattr(cls, "withholds_estimates", False)))
         status = "diverged" if why else "ok"
         runs[name] = ObserverRun(status, reply.seconds / max(n, 1) * 1e6, reply.certified, reply.design_reason, n,
                                  reply.design_status, why or "")

@@ -45,6 +45,7 @@ class AlgebraicVyYacine(ScalarLoopObserver):
     name = "algebraic_vy_yacine"
     citation = "Z. Yacine et al., IEEE Trans. Control Syst. Technol. 23(2):754-761, 2015, eqs. (9), (25)-(26)"
     inputs = ("yaw_rate_radps", "vx_mps", "y_lane_m", "psi_lane_rad")
+    withholds_estimates = True  # an algebraic estimate: no camera, no estimate (never a prediction)
     states = ("vy_mps", "beta_rad")
     variant = "algebraic"
     # The differentiator defaults are those of ts_yacine (tuned for the automotive 20 Hz camera), so

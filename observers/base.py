@@ -83,6 +83,11 @@ class Observer(ABC):
     #: more than a small fraction of the time as ``saturated`` (``harness.scoring``): declare every
     #: static clip here, or a pinned estimate passes as ``ok``.
     state_bounds: ClassVar[Mapping[str, tuple[float, float]]] = {}
+    #: True if the observer returns NaN ("no estimate") where its inputs cannot support one (an
+    #: algebraic estimate during a camera gap) instead of predicting. NaN is never a divergence (only
+    #: ±inf is); scoring counts it as missing and a long gap makes the status ``diverged (no estimate
+    #: for x % of the time)``.
+    withholds_estimates: ClassVar[bool] = False
 
     def __init__(self, vehicle: VehicleParams, **options: Any) -> None:
         unknown = sorted(set(options) - set(self.default_options))

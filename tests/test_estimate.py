@@ -121,3 +121,22 @@ def test_bad_requests_are_input_errors() -> None:
         run_observers(_frame(), SEDAN, ["kf_bicycle"], options={"kf_bicycle": {"typo": 1}})
     with pytest.raises(InputError, match="t_s"):
         run_observers(_frame().drop(columns=["t_s"]), SEDAN, ["kf_bicycle"])
+
+
+def test_nan_is_no_estimate_and_inf_is_divergence() -> None:
+    """Leading NaN = not started (fine); NaN later = a numerical failure unless the observer withholds
+    estimates without input; ±inf is always a divergence."""
+    from harness.estimate import _diverged
+
+    t = np.arange(100) * 0.01
+    x = np.ones((100, 2))
+    x[:10] = np.nan
+    assert _diverged(x, t, ("vy_mps", "beta_rad")) is None
+    gap = x.copy()
+    gap[50:60] = np.nan
+    assert "non-finite estimate at t=0.500" in _diverged(gap, t, ("vy_mps", "beta_rad"))
+    assert _diverged(gap, t, ("vy_mps", "beta_rad"), withholds=True) is None
+    blown = x.copy()
+    blown[70, 1] = np.inf
+    assert "infinite estimate at t=0.700" in _diverged(blown, t, ("vy_mps", "beta_rad"), withholds=True)
+    assert _diverged(np.full((100, 2), np.nan), t, ("vy_mps", "beta_rad")) == "no finite estimate at all"
