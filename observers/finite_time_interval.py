@@ -41,12 +41,13 @@ error dynamics through ``L w`` and ``K w`` and the ``v`` bound through the measu
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from harness.errors import InputError
-from observers.base import ScalarLoopObserver
+from observers.base import EstimateTrack, ScalarLoopObserver
 from observers.bicycle import axle_stiffness
 from observers.finite_time_interval_design import BicycleLPV, FlpvOptions, cached, design_efimov, design_flpv
 from observers.lmi import DesignResult, SolverSettings, usable_gains
@@ -126,6 +127,11 @@ class _BicycleLPVObserver(ScalarLoopObserver):
         self._next = -math.inf   # time of the next discrete step [s]
         self._count = 0          # valid steps since the last restart
         self._prior(math.nan)
+
+    def run(self, t: np.ndarray, Y: np.ndarray, x0: Mapping[str, float] | None = None) -> EstimateTrack:
+        """Compiled loop (:mod:`observers.finite_time_interval_loop`), equal to stepping :meth:`step`."""
+        from observers.finite_time_interval_loop import run_compiled
+        return run_compiled(self, t, Y, x0)
 
     def _advance(self, t_s: float, y: list[float]) -> None:
         self._tick(t_s, y)

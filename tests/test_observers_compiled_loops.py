@@ -19,7 +19,7 @@ from observers.registry import available_observers, create, observer_class
 SEDAN = load_vehicle("sedan")
 
 #: Families whose run() is a compiled loop (module -> the observers it registers).
-COMPILED_MODULES = ("observers.high_gain_radar", "observers.high_gain_methods")
+COMPILED_MODULES = ("observers.high_gain_radar", "observers.high_gain_methods", "observers.finite_time_interval")
 COMPILED = [n for n in available_observers() if observer_class(n).__module__ in COMPILED_MODULES]
 
 pytestmark = pytest.mark.usefixtures("isolated_design_cache")
@@ -81,7 +81,7 @@ def _close(a: np.ndarray, b: np.ndarray) -> None:
 
 
 def test_compiled_families_are_listed() -> None:
-    assert len(COMPILED) >= 7
+    assert len(COMPILED) >= 11
     for name in COMPILED:
         assert observer_class(name).run is not ScalarLoopObserver.run, name
 
