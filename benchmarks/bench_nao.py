@@ -307,7 +307,7 @@ def mujoco() -> None:
             r = m[(m["scenario"] == sc) & (m["observer"] == name)].set_index("state")
             vals = " ".join(f"{s} {r.loc[s, 'rmse']:.4f}" if s in r.index else f"{s} -"
                             for s in ("vy_mps", "yaw_rate_radps", "beta_rad"))
-            print(f"    {name:27s} {vals}; status {r['status'].iloc[0]}, certified {r['certified'].iloc[0]}")
+            print(f"    {name:27s} {vals}; status (v_y) {r.loc['vy_mps', 'status']}, certified {r['certified'].iloc[0]}")
 
 
 # ---- 6. cost ----------------------------------------------------------------------------------------------
