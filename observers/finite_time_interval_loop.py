@@ -126,10 +126,9 @@ def finite_time_run(t: np.ndarray, Y: np.ndarray, u: np.ndarray, tl: np.ndarray,
             rho1, rho2 = 1.0 / vx, 1.0 / (vx * vx)
             a1w, a2w = (h1r - rho1) / (h1r - l1r), (h2r - rho2) / (h2r - l2r)
             xi[0], xi[1], xi[2], xi[3] = a1w * a2w, a1w * (1 - a2w), (1 - a1w) * a2w, (1 - a1w) * (1 - a2w)
-            l1 = xi[0] * Lv[0, 0] + xi[1] * Lv[1, 0] + xi[2] * Lv[2, 0] + xi[3] * Lv[3, 0]
-            l2 = xi[0] * Lv[0, 1] + xi[1] * Lv[1, 1] + xi[2] * Lv[2, 1] + xi[3] * Lv[3, 1]
-            k1 = xi[0] * Kv[0, 0] + xi[1] * Kv[1, 0] + xi[2] * Kv[2, 0] + xi[3] * Kv[3, 0]
-            k2 = xi[0] * Kv[0, 1] + xi[1] * Kv[1, 1] + xi[2] * Kv[2, 1] + xi[3] * Kv[3, 1]
+            # np.dot (BLAS, as numpy's ``xi @ L`` in step()): the same summation order, the same bits
+            lv, kv = np.dot(xi, Lv), np.dot(xi, Kv)
+            l1, l2, k1, k2 = lv[0], lv[1], kv[0], kv[1]
             A0, A1, A2, A3, b1, b2 = _a_b(par, rho1, rho2)
             if s[1] == 0.0:
                 nh[0] = 0
