@@ -277,9 +277,14 @@ class NeuralAdaptiveNguyen(ScalarLoopObserver):
             z[("vy_mps", "yaw_rate_radps").index(key)] = float(value)
         return z
 
-    def _reset_extra(self) -> None:
+    def _gain(self) -> np.ndarray:
+        # Fetched on the first step, not at construction: creating the observer (to check a user's
+        # options) must not solve its LMI, and a failed design then fails only this observer's run.
         if self._L is None:
             self._L = np.array(usable_gains(self.name, self.design(), ["L"])).reshape(N_X, 3)
+        return self._L
+
+    def _reset_extra(self) -> None:
         self._x = np.array([0.0, self._z[0], 0.0, self._z[1]])
         self._theta = init_theta(int(self.options["seed"]))
         self._S = np.zeros((N_X, N_THETA))
@@ -332,7 +337,7 @@ class NeuralAdaptiveNguyen(ScalarLoopObserver):
         live = r == r and vx == vx and t_s - min(tl[0], tl[1]) <= self.options["hold_s"]
         v = min(max(vx if vx == vx else self._x[0], self._vlo), self._vhi)
         A = self._model.A(v)
-        L = self._L if live else np.zeros((N_X, 3))
+        L = self._gain() if live else np.zeros((N_X, 3))
         zt = self._teacher.zeta_hat()
         yv = np.array([vx if vx == vx else self._x[0], self._psi_m, r if r == r else self._x[3]])
         u = np.array([ax if ax == ax else 0.0, delta if delta == delta else 0.0])

@@ -217,3 +217,14 @@ def test_protocol_accumulation_does_not_remove_the_early_spikes(protocol_runs) -
     assert win["nao_nguyen"][:4].max() > 2.0 * win["nao_nguyen_stepwise"][:4].max(), win
     late = {k: float(out[k][1][len(out[k][1]) // 2:].mean()) for k in win}
     assert abs(late["nao_nguyen"] - late["nao_nguyen_stepwise"]) < 0.3 * late["nao_nguyen_stepwise"], late
+
+
+def test_an_infeasible_design_fails_the_run_not_the_construction():
+    """Creating the observer (the harness does, to check a user's options) never solves its LMI;
+    the disk radius 0.8 is infeasible on the sedan at 10 ms, which only the run reports."""
+    from observers.lmi import DesignFailed
+
+    obs = create("nao_nguyen", load_vehicle("sedan"), disk_radius=0.8)
+    t = np.arange(5) * 0.01
+    with pytest.raises(DesignFailed):
+        obs.run(t, np.tile([20.0, 0.0, 0.0, 0.0], (5, 1)))
