@@ -370,7 +370,7 @@ def unusable_state_status(state: str, status: str, rmse_value: float, truth: np.
     floor = band if math.isfinite(band) else 0.0
     if rmse_value > max(UNUSABLE_RATIO * zero_error, floor):
         ratio = rmse_value / zero_error if zero_error > 0 else math.inf
-        what = f"{ratio:.1f}×" if ratio < 10 else (f"{ratio:.0f}×" if math.isfinite(ratio) else "∞×")
+        what = f"{ratio:.2f}×" if ratio < 10 else (f"{ratio:.0f}×" if math.isfinite(ratio) else "∞×")
         return f"unusable (RMS error {what} that of assuming zero)"
     return status
 

@@ -199,8 +199,8 @@ def test_an_estimate_worse_than_assuming_zero_is_unusable_on_that_state_only():
               runs={"o": SimpleNamespace(status="ok", us_per_step=1.0, certified=False, design_reason="",
                                          n_steps=t.size)})
     st = dict(zip(m["state"], m["status"], strict=True))
-    # RMS of 0.02 sin t over 5 s is 0.0145 rad: the 0.05 rad bias is 3.4x that of the estimate 0
-    assert st["beta_rad"].startswith("unusable (RMS error 3.4×"), st
+    # RMS of 0.02 sin t over 5 s is 0.0145 rad: the 0.05 rad bias is 3.45x that of the estimate 0
+    assert st["beta_rad"].startswith("unusable (RMS error 3.45×"), st
     assert st["vy_mps"] == "ok" and st["x_m"] == "ok", st
 
 
