@@ -140,4 +140,6 @@ def test_failed_cases_are_not_cached(tiny: Path, tmp_path: Path, monkeypatch: py
     monkeypatch.setattr(sensors, "emulate", real)
     healed = _sweep(tiny, tmp_path / "healed", seeds=1, frictions=["1.0", "ice"])
     assert (_timings(healed)["n_cached"], _timings(healed)["n_computed"]) == (1, 1)  # the error is retried
-    assert _rows(healed)["status"].str.startswith("ok").all()
+    # retried and run: no error left (on ice the KF's sideslip may honestly be "unusable")
+    assert not _rows(healed)["status"].str.startswith("error").any()
+    assert _rows(healed).loc[lambda r: r["friction"] == "1.0", "status"].str.startswith("ok").all()
