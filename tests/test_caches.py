@@ -96,6 +96,7 @@ def test_no_cache_in_the_working_directory_and_the_user_cache_is_used(tmp_path: 
     monkeypatch.chdir(work)
     monkeypatch.delenv(CACHE_ENV, raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(user_cache))  # where platformdirs puts user caches on Linux
+    monkeypatch.setenv(lmi.SHIPPED_DESIGNS_ENV, "0")  # a design solved here, not read from the package
     lmi.clear_memory_cache()
     try:
         design = create(REJECTED, load_vehicle("sedan")).design()

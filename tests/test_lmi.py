@@ -28,6 +28,7 @@ V_RNG, A_RNG = (15 / 3.6, 150 / 3.6), (-8.0, 8.0)
 @pytest.fixture(autouse=True)
 def _design_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("ROADTRUTH_CACHE", str(tmp_path))  # designs go to tmp_path/designs
+    monkeypatch.setenv("ROADTRUTH_SHIPPED_DESIGNS", "0")  # these tests solve designs themselves
     lmi.clear_memory_cache()
     yield
     lmi.clear_memory_cache()

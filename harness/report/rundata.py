@@ -228,9 +228,16 @@ class ScenarioFiles:
     def estimates(self) -> pd.DataFrame:
         """Long ``t_s, observer, state, value, lo, hi, var`` whether the file is wide or long."""
         found = table_path(self.folder, "estimates")
-        if found is None:
+        path = self._path(found.name) if found is not None else None  # never read outside the folder
+        if path is None:
             return pd.DataFrame()
-        head = read_table(found, nrows=0) if format_of(found) == "csv" else None
+        try:
+            head = read_table(path, nrows=0) if format_of(path) == "csv" else None
+        except pd.errors.EmptyDataError:
+            raise RunFolderError("empty file (no header)", source=str(path)) from None
+        except (ValueError, pd.errors.ParserError, UnicodeDecodeError, OSError) as e:
+            first = str(e).splitlines()[0] if str(e) else type(e).__name__
+            raise RunFolderError(f"unreadable CSV ({first})", source=str(path)) from None
         if head is not None and not is_wide(head):  # a run written before the wide form
             return self._table("estimates", required=("t_s", "observer", "state", "value"),
                                text=("observer", "state"))
