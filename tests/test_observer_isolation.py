@@ -34,7 +34,7 @@ pytestmark = pytest.mark.usefixtures("isolated_design_cache")
 
 SEDAN = load_vehicle("sedan")
 TESTS = Path(__file__).resolve().parent
-GOOD = "kinematic_vy"
+GOOD = "open_loop_bicycle"  # cheap, no design, and usable on the scenarios used here
 LINUX = sys.platform.startswith("linux")
 
 #: (plug-in, time budget [s] or None for the default, the status it must get)
@@ -62,7 +62,9 @@ def _frame(n: int = 400, h: float = 0.01) -> pd.DataFrame:
     t = np.arange(n) * h
     vx = np.full(n, 15.0)
     r = vx * 0.03 * np.sin(2 * np.pi * 0.4 * t) / 2.8
-    return pd.DataFrame({"t_s": t, "vx_mps": vx, "yaw_rate_radps": r, "ay_mps2": r * vx, "imu_valid": 1})
+    delta = 0.03 * np.sin(2 * np.pi * 0.4 * t)
+    return pd.DataFrame({"t_s": t, "vx_mps": vx, "yaw_rate_radps": r, "ay_mps2": r * vx, "imu_valid": 1,
+                         "delta_rad": delta, "steering_valid": 1})
 
 
 # ---- library level ---------------------------------------------------------------------------------
@@ -133,7 +135,7 @@ def test_run_suite_completes_with_every_kind_of_failing_observer(plugins, tmp_pa
     assert status[GOOD] == "ok"
     a = pd.read_csv(alone / "metrics.csv")
     pd.testing.assert_frame_equal(m[m.observer == GOOD].drop(columns="us_per_step").reset_index(drop=True),
-                                  a.drop(columns="us_per_step").reset_index(drop=True))
+                                  a.drop(columns="us_per_step").reset_index(drop=True), check_dtype=False)
     assert (out / "step_steer" / "estimates.csv").read_bytes() == (alone / "step_steer" / "estimates.csv").read_bytes()
     run = json.loads((out / "run.json").read_text())
     assert [s["status"] for s in run["scenarios"]] == ["ok"]
@@ -263,7 +265,8 @@ def test_a_crashed_scenario_worker_costs_only_its_scenario(tmp_path: Path, plugi
     assert all(st == "ok" for n, st in statuses.items() if n not in crashed), statuses
     m = pd.read_csv(out / "metrics.csv")
     assert set(m.scenario) == set(scenarios)
-    assert (m[m.scenario != crashed[0]]["status"] == "ok").all()
+    # the other scenarios were scored normally (their verdicts are the observer's, never an error)
+    assert not m[m.scenario != crashed[0]]["status"].str.startswith("error").any()
     assert m[m.scenario == crashed[0]]["status"].str.contains("worker crashed").all()
     assert (out / "index.html").is_file()
 
