@@ -27,6 +27,7 @@ import secrets
 import shutil
 import socket
 import tempfile
+import time
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
@@ -94,13 +95,22 @@ def foreign_entry(folder: Path) -> str | None:
     before the marker existed (a ``run.json`` with a ``"command"`` key, or only ``compare`` files).
     A folder that is gone (renamed away by a concurrent writer) has nothing to protect.
     """
-    for _ in range(5):
+    # A concurrent writer may swap the folder between our listing and our look at its marker (its two
+    # renames leave ``folder`` missing for an instant): a verdict counts only when two consecutive
+    # looks agree, since what a user put there stays put while a swap does not.
+    last: object = object()
+    for _ in range(20):
         try:
-            return _foreign_entry(folder)
+            found = _foreign_entry(folder)
         except FileNotFoundError:
             # Renamed away while being read: look again at whatever now stands at ``folder``.
             if not folder.exists():
                 return None
+            continue
+        if found is None or found == last:
+            return found
+        last = found
+        time.sleep(0.005)
     return _foreign_entry(folder)
 
 
@@ -135,6 +145,28 @@ def _foreign_entry(folder: Path) -> str | None:
     return names[0]
 
 
+def _kind(p: Path) -> str | None:
+    """``"dir"``, ``"file"`` (anything else, symlinks included) or None if nothing is there.
+
+    One ``lstat`` per look, and a look repeated when it saw nothing: a concurrent writer's two
+    renames leave the path missing for an instant, which must not read as "a file" or "nothing".
+    """
+    import stat
+
+    for _ in range(20):
+        try:
+            mode = os.lstat(p).st_mode
+        except NotADirectoryError:
+            return None  # below a regular file: nothing can be there (check_writable says why)
+        except FileNotFoundError:
+            if not p.parent.exists():
+                return None  # a new path below a new folder: no concurrent writer can be swapping it
+            time.sleep(0.002)
+            continue
+        return "dir" if stat.S_ISDIR(mode) else "file"
+    return None
+
+
 def check_writable(path: str | Path, *, what: str, folder: bool = True) -> Path:
     """Check that ``path`` can be created: raise :class:`OutputPathError` if it cannot, touch nothing.
 
@@ -147,10 +179,11 @@ def check_writable(path: str | Path, *, what: str, folder: bool = True) -> Path:
     """
     p = _absolute(path)
     shown = _shown(path, folder=folder)
-    if p.exists() or p.is_symlink():
-        if not folder and p.is_dir():
+    kind = _kind(p)
+    if kind is not None:
+        if not folder and kind == "dir":
             raise OutputPathError(f"{what} {path} is a folder; give a file path")
-        if folder and not p.is_dir():
+        if folder and kind != "dir":
             raise OutputPathError(f"{what} {path} is an existing file; choose a new or empty folder")
     anc = p.parent
     while not anc.exists():
@@ -197,7 +230,7 @@ def check_output_dir(out: str | Path, *, inputs: Iterable[str | Path | None] = (
                 if candidate == folder_ or folder_ in candidate.parents:
                     raise OutputPathError(f"{what} {shown} holds {inp}, an input of this command; "
                                           "choose another folder")
-    if p.exists() and p.is_dir():
+    if _kind(p) == "dir":
         foreign = foreign_entry(p)
         if foreign is not None:
             raise OutputPathError(f"{what} {shown} holds files roadtruth did not write (such as {foreign}); "

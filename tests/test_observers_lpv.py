@@ -348,6 +348,10 @@ def test_robust_family_runs_in_the_harness_on_mujoco(tmp_path) -> None:
     m = pd.read_csv(out / "metrics.csv")
     rows = m[m["observer"].isin(names) & (m["state"] == "alpha_r_rad")]
     assert set(rows["observer"]) == set(names)
-    assert (rows["status"] == "ok").all(), rows[["observer", "status"]]
     fresh = rows[~rows["observer"].str.endswith("_printed")]
+    assert (fresh["status"] == "ok").all(), rows[["observer", "status"]]
+    # the printed unstructured H2 gains are rejected by certification, and on the multibody car their
+    # rear slip is worse than assuming 0: the verdict says so
+    printed = rows[rows["observer"] == "lpv_wang_unstructured_h2_printed"]
+    assert printed["status"].str.startswith("unusable").all(), printed[["observer", "status"]]
     assert (fresh["rmse"] < np.deg2rad(0.6)).all(), fresh[["observer", "rmse"]]

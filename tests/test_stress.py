@@ -61,7 +61,8 @@ def test_cases_and_seeds_are_exactly_the_cartesian_product(serial: Path) -> None
     # every case scores every observer, and the seed index maps to its seed
     assert rows.groupby("case")["observer"].nunique().eq(len(OBSERVERS)).all()
     assert all(seeds[k] == s for k, s in zip(cases["seed_index"], cases["seed"], strict=True))
-    assert rows["status"].str.startswith("ok").all()
+    # every case ran and was judged (an observer may honestly be "unusable" on a state; none errored)
+    assert not rows["status"].str.startswith(("error", "skipped")).any(), rows["status"].unique()
     summary = pd.read_csv(serial / "summary.csv", keep_default_na=False, na_values=[""])
     assert summary["n_cases"].eq(2).all()  # two seeds per (observer, state, friction, faults)
     assert len(summary) == rows.groupby(["observer", "state", "friction"]).ngroups

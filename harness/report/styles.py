@@ -24,7 +24,8 @@ PALETTE: tuple[str, ...] = (
     "#bcbd22", "#17becf", "#9467bd", "#882255",
 )
 #: Plotly dash names and the SVG stroke-dasharray that draws the same pattern in a table swatch.
-DASHES: tuple[tuple[str, str], ...] = (("solid", ""), ("dash", "6,3"), ("dot", "1.5,2.5"), ("dashdot", "6,2,1.5,2"))
+DASHES: tuple[tuple[str, str], ...] = (("solid", ""), ("dash", "6,3"), ("dot", "1.5,2.5"), ("dashdot", "6,2,1.5,2"),
+                                       ("longdash", "10,3"), ("longdashdot", "10,2,1.5,2"))
 N_STYLES = len(PALETTE) * len(DASHES)
 TRUTH_COLOUR = "#111111"
 
