@@ -72,7 +72,7 @@ _COMMON: dict[str, Any] = {
     "lead_speed_range_mps": (0.0, 45.0),     # design box of f (k_f) and saturation of its arguments
     "lead_accel_range_mps2": (-10.0, 6.0),
     "lambda_": 1.0,                          # lambda of (4.20)/(4.57), fixed (homogeneous LMIs)
-    "sigma": 1.0,                            # sigma of (4.55)-(4.58); [EXT] repo uses 1
+    "sigma": 1.0,                            # sigma of (4.55)-(4.58); the author's public code uses 1
     "z_min": 1.0,                            # Remark 4.3.1: lower bound on Z_2 (multi only)
     "theta_factor": 2.0,                     # theta = theta_factor * theta_0: kappa = 2 k_f (theta_factor - 1)
     "first_order_hold": True,                # inputs as ramps through the last two samples (else held)

@@ -48,7 +48,9 @@ def test_the_scanner_catches_labels_and_spares_code_words() -> None:
 def user_docs() -> list[Path]:
     docs = sorted((ROOT / "docs").rglob("*.md"))
     templates = sorted((ROOT / "harness" / "report" / "templates").glob("*.html"))
-    return [ROOT / "README.md", *docs, *templates]
+    # the shipped vehicle, scenario, sensor, threshold and column-map files: users read and copy them
+    shipped = sorted(p for p in (ROOT / "harness").rglob("*.yaml") if "__pycache__" not in p.parts)
+    return [ROOT / "README.md", *docs, *templates, *shipped]
 
 
 @pytest.mark.parametrize("path", user_docs(), ids=lambda p: str(p.relative_to(ROOT)))
