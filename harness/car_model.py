@@ -3,13 +3,16 @@
 Layout (shared/notes/mujoco-car-and-tires.md, section 4.1)::
 
     chassis  <freejoint>, inertial at the CG, collision box with the floor only
-      upright_XX  slide joint susp_XX (z up, q > 0 = bump), spring/damper, bump stops = range
+      upright_XX  slide joint susp_XX (q > 0 = bump), spring/damper, bump stops = range; the axis is
+                  inclined in the y-z plane (top inward) by atan(2 h_rc / track), so the axle's roll
+                  centre sits at h_rc on the centre line (docs/PHYSICS.md, "Suspension")
         [front] knuckle_XX  hinge steer_XX (z), position servo
           wheel_XX  hinge spin_XX (y), motor (drive + brake torque)
 
 Wheels have NO MuJoCo contact: the tire forces (normal load from a radial tire spring, Magic Formula
-Fx/Fy) are computed by ``harness.simulate`` each step and applied at the contact patch through
-``xfrc_applied``. Anti-roll bars are fixed tendons on the left-right travel difference.
+Fx/Fy/Mz) are computed by ``harness.simulate`` each step and applied at the contact point through
+``xfrc_applied``. Anti-roll bars are fixed tendons on the left-right travel difference. Springs,
+dampers and bars act along the inclined axes with their vertical rates preserved (k_axis = k cos^2 θ).
 
 Mass bookkeeping: the set's ``mass_kg`` and ``*_inertia_kgm2`` are for the WHOLE car about its CG.
 The unsprung corners (upright, knuckle, wheel) are subtracted, so the chassis gets the remainder and
@@ -56,7 +59,16 @@ class CornerGeometry:
     position: np.ndarray  # (4, 3) wheel centres [m]
     fz_static: np.ndarray  # (4,) static wheel loads [N]
     tire_deflection: np.ndarray  # (4,) static tire compression [m]
-    spring_ref: np.ndarray  # (4,) suspension springref [m]
+    spring_ref: np.ndarray  # (4,) suspension springref along the inclined axis [m]
+    incline: np.ndarray  # (4,) inclination θ of each slide axis from the vertical [rad] (top inward)
+
+
+def suspension_incline(v: VehicleParams) -> np.ndarray:
+    """Inclination θ (4,) [rad] of each corner's slide axis: tan θ = 2 h_rc / track (roll centre at h_rc)."""
+    s = v.suspension
+    th_f = math.atan(2.0 * s.roll_centre_f_m / v.track_f_m)
+    th_r = math.atan(2.0 * s.roll_centre_r_m / v.track_r_m)
+    return np.array([th_f, th_f, th_r, th_r])
 
 
 def corner_geometry(v: VehicleParams) -> CornerGeometry:
@@ -70,8 +82,10 @@ def corner_geometry(v: VehicleParams) -> CornerGeometry:
     x = np.array([v.lf_m, v.lf_m, -v.lr_m, -v.lr_m])
     y = np.array([v.track_f_m, -v.track_f_m, v.track_r_m, -v.track_r_m]) / 2.0
     z = v.wheel_radius_m - defl - v.h_cg_m
-    spring_ref = -(fz - v.unsprung_mass_kg * G) / k
-    return CornerGeometry(np.column_stack([x, y, z]), fz, defl, spring_ref)
+    th = suspension_incline(v)
+    # Static equilibrium at q = 0: the axis spring (k cos^2 θ) carries the sprung load's axial component.
+    spring_ref = -(fz - v.unsprung_mass_kg * G) / (k * np.cos(th))
+    return CornerGeometry(np.column_stack([x, y, z]), fz, defl, spring_ref, th)
 
 
 def _wheel_inertia(v: VehicleParams) -> tuple[float, float]:
@@ -132,6 +146,10 @@ def _corner_xml(v: VehicleParams, i: int, g: CornerGeometry) -> str:
     R = v.wheel_radius_m
     own = 0.02 * mu
     m_up = mu * (UPRIGHT_SHARE + (0.0 if front else KNUCKLE_SHARE))
+    th = float(g.incline[i])
+    side = 1.0 if g.position[i, 1] > 0.0 else -1.0
+    c2 = math.cos(th) ** 2
+    axis = f"0 {_f(side * math.sin(th))} {_f(math.cos(th))}"
     wheel = (f'<body name="wheel_{name}">'
              f'<joint name="spin_{name}" type="hinge" axis="0 1 0" damping="0.05"/>'
              f'<inertial pos="0 0 0" mass="{_f(mu * (1 - UPRIGHT_SHARE - KNUCKLE_SHARE))}" '
@@ -149,8 +167,9 @@ def _corner_xml(v: VehicleParams, i: int, g: CornerGeometry) -> str:
                  f'<inertial pos="0 0 0" mass="{_f(mu * KNUCKLE_SHARE)}" diaginertia="{_f(own * 0.25)} {_f(own * 0.25)} {_f(own * 0.25)}"/>'
                  f'{wheel}</body>')
     return (f'<body name="upright_{name}" pos="{_vec(g.position[i])}">'
-            f'<joint name="susp_{name}" type="slide" axis="0 0 1" range="{_f(-s.travel_m)} {_f(s.travel_m)}" '
-            f'stiffness="{_f(k)}" springref="{_f(g.spring_ref[i])}" damping="{_f(c)}" armature="1"/>'
+            f'<joint name="susp_{name}" type="slide" axis="{axis}" range="{_f(-s.travel_m / math.cos(th))} '
+            f'{_f(s.travel_m / math.cos(th))}" stiffness="{_f(k * c2)}" springref="{_f(g.spring_ref[i])}" '
+            f'damping="{_f(c * c2)}" armature="1"/>'
             f'<inertial pos="0 0 0" mass="{_f(m_up)}" diaginertia="{_f(own * (0.75 if front else 1.0))}'
             f' {_f(own * (0.75 if front else 1.0))} {_f(own * (0.75 if front else 1.0))}"/>'
             f'{wheel}</body>')
@@ -284,6 +303,7 @@ def build_mjcf(vehicle: VehicleParams, scenario: Any = None, *, timestep_s: floa
     cx, cy = (extent[0] + extent[1]) / 2.0, (extent[2] + extent[3]) / 2.0
     hx, hy = (extent[1] - extent[0]) / 2.0, (extent[3] - extent[2]) / 2.0
     corners = "".join(_corner_xml(vehicle, i, g) for i in range(4))
+    c2f, c2r = math.cos(g.incline[0]) ** 2, math.cos(g.incline[2]) ** 2
     steer = "".join(f'<position name="steer_{c}" joint="steer_{c}" kp="{_f(STEER_KP)}" dampratio="1"/>'
                     for c in CORNERS[:2])
     torque = "".join(f'<motor name="torque_{c}" joint="spin_{c}"/>' for c in CORNERS)
@@ -328,8 +348,8 @@ def build_mjcf(vehicle: VehicleParams, scenario: Any = None, *, timestep_s: floa
     </body>
   </worldbody>
   <tendon>
-    <fixed name="arb_f" stiffness="{_f(s.arb_f_Npm)}"><joint joint="susp_fl" coef="1"/><joint joint="susp_fr" coef="-1"/></fixed>
-    <fixed name="arb_r" stiffness="{_f(s.arb_r_Npm)}"><joint joint="susp_rl" coef="1"/><joint joint="susp_rr" coef="-1"/></fixed>
+    <fixed name="arb_f" stiffness="{_f(s.arb_f_Npm * c2f)}"><joint joint="susp_fl" coef="1"/><joint joint="susp_fr" coef="-1"/></fixed>
+    <fixed name="arb_r" stiffness="{_f(s.arb_r_Npm * c2r)}"><joint joint="susp_rl" coef="1"/><joint joint="susp_rr" coef="-1"/></fixed>
   </tendon>
   <actuator>
     {steer}

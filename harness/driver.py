@@ -36,7 +36,11 @@ MAX_DECEL_DEMAND = 8.0
 #: follow_lead: speed correction per metre of gap error [1/s] (added to the lead's speed).
 GAP_GAIN = 0.25
 #: Brake demand fades out between these speeds: the tire model is only valid above ~3 m/s [m/s].
-BRAKE_FADE_MPS = (2.0, 4.0)
+#: A target speed at or below this is a stop [m/s]; under HOLD_BELOW_MPS the driver then holds the
+#: car on the brake with HOLD_DECEL_MPS2 of demand (a foot on the pedal at a traffic light).
+STOP_TARGET_MPS = 0.05
+HOLD_BELOW_MPS = 0.5
+HOLD_DECEL_MPS2 = 3.0
 #: Geometry of the range measurement: ego front bumper ahead of the CG by lf + this [m]; the lead car
 #: is LEAD_LENGTH_M long with its CG in the middle. range_m is bumper to bumper.
 FRONT_OVERHANG_M = 0.9
@@ -364,14 +368,15 @@ def speed_controller(mode: int, t: float, vx: float, v_target: float, dv_target:
                      brake_t0: float, brake_decel: float, dt: float) -> tuple[float, float]:
     """Longitudinal acceleration demand [m/s^2] and the updated integrator state [m].
 
-    mode 0 = track ``v_target`` (PI with feed-forward of its slope); mode 1 = brake: PI before
-    ``brake_t0``, then the constant demand −``brake_decel`` (no ABS), faded out at low speed because
-    the tire model is not meant for standstill. The integrator is clamped (anti-windup).
+    mode 0 = track ``v_target`` (PI with feed-forward of its slope); a stop target (≤ STOP_TARGET_MPS)
+    reached below HOLD_BELOW_MPS holds the car with −HOLD_DECEL_MPS2 and resets the integrator;
+    mode 1 = brake: PI before ``brake_t0``, then the constant demand −``brake_decel`` (no ABS) down to
+    standstill and on (the brakes then hold the car). The integrator is clamped (anti-windup).
     """
     if mode == 1 and t >= brake_t0:
-        lo, hi = BRAKE_FADE_MPS
-        fade = min(max((vx - lo) / (hi - lo), 0.0), 1.0)
-        return -brake_decel * fade, integral
+        return -brake_decel, integral
+    if v_target <= STOP_TARGET_MPS and vx < HOLD_BELOW_MPS:
+        return -HOLD_DECEL_MPS2, 0.0
     err = v_target - vx
     integral = min(max(integral + err * dt, -MAX_ACCEL_DEMAND / SPEED_KI), MAX_ACCEL_DEMAND / SPEED_KI)
     a = dv_target + SPEED_KP * err + SPEED_KI * integral

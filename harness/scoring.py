@@ -333,11 +333,16 @@ def bound_fraction(a: Aligned, bounds: tuple[float, float]) -> float:
 
 
 def missing_fraction(a: Aligned) -> float:
-    """Fraction of the scored time without a (finite) estimate; NaN if nothing is scored."""
-    total = float(np.sum(a.dt_s))
+    """Fraction of the scored time without a (finite) estimate; NaN if nothing is scored.
+
+    Only where the truth itself is defined: a car at rest has no sideslip (NaN in the truth), and an
+    observer that says nothing there has not failed.
+    """
+    defined = np.isfinite(a.truth)
+    total = float(np.sum(a.dt_s * defined))
     if not total > 0.0:
         return math.nan
-    return float(np.sum(a.dt_s * ~np.isfinite(a.value))) / total
+    return float(np.sum(a.dt_s * (defined & ~np.isfinite(a.value)))) / total
 
 
 def _percent(fraction: float) -> str:

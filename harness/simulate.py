@@ -6,9 +6,13 @@ Each step (shared/notes/mujoco-car-and-tires.md, sections 4.2 and 7)::
     guard                         non-finite state, roll/pitch past 80 deg, chassis height -> stop
     driver                        steering command (profile or path follower), rate limit, Ackermann;
                                   longitudinal demand (PI / brake / time gap) -> wheel torques
-    tires (per wheel)             contact point, radial-spring F_z, slips, relaxation, mu(x, y, t),
-                                  MF combined slip with peak grip * mu * F_z -> xfrc_applied at the
-                                  contact patch
+    tires (per wheel)             road surface under the wheel (height, normal), contact point =
+                                  foot of the perpendicular from the wheel centre, radial-spring F_z,
+                                  slip velocities of the contact point on the wheel carrier,
+                                  transient slip (deflection states, damped at low speed), camber,
+                                  mu(x, y, t), tire model (F_x, F_y, M_z) -> xfrc_applied at the
+                                  contact point; brakes as spin-joint friction, rolling resistance
+    aero                          drag and axle lift on the chassis
     log                           state at t_k into the preallocated row k
     mj_step2                      forces -> accelerations (accelerometer) -> integrate to t_k+1
 
@@ -42,20 +46,29 @@ from harness.driver import (
 )
 from harness.errors import ScenarioError
 from harness.friction_map import SURFACES, mu_at
-from harness.road import road_project
+from harness.road import road_project, road_surface
 from harness.signals import WHEELS
-from harness.tire import _combined, jit, radial_load_kernel, relax_kernel, shape_array
+from harness.tire import combined_with_camber, jit, radial_load_kernel, shape_array
 from harness.truth import RAW_COLUMNS, RAW_INDEX, Truth, build_frame
 from harness.truth_events import detect_events
 from harness.vehicle import G, VehicleParams, load_vehicle
 
-MIN_START_SPEED_MPS = 3.0
+#: Without a relaxation length (no transient slip) the slips are kinematic and need speed [m/s].
+MIN_START_SPEED_NO_RELAXATION_MPS = 3.0
+#: Slip denominators without transient slip use max(|v_x|, V_MIN_SLIP_MPS) [m/s].
+V_MIN_SLIP_MPS = 1.0
+#: Below this contact-point speed the tire's deflection states get damping (fades out to it) [m/s].
+V_LOW_MPS = 1.5
+#: Target damping ratio of the tire-spring/quarter-car mode at standstill (limited for the wheel's spin).
+STANDSTILL_DAMPING_RATIO = 1.0
+#: Deflection states are bounded to |kappa'| <= KAPPA_MAX and |tan alpha'| <= TAN_ALPHA_MAX.
+KAPPA_MAX, TAN_ALPHA_MAX = 5.0, 5.0
+#: Rolling resistance reverses smoothly over this spin rate [rad/s].
+ROLLING_OMEGA_EPS = 0.5
 #: Divergence guard limits.
 MAX_TILT_RAD = math.radians(80.0)
 MAX_CG_HEIGHT_ABOVE_REST_M = 3.0
 MAX_STEP_JUMP_M = 1.0
-#: Brake torque follows the wheel's spin direction, smoothed over this spin rate [rad/s].
-BRAKE_OMEGA_EPS = 1.0
 #: Drive torque split (fl, fr, rl, rr) per layout.
 DRIVE_SPLIT = {"rwd": (0.0, 0.0, 0.5, 0.5), "fwd": (0.5, 0.5, 0.0, 0.0), "awd": (0.2, 0.2, 0.3, 0.3)}
 MAX_STEP_DV_MPS = 2.0  # 2000 m/s^2 for one step: only a MuJoCo reset or a blow-up does that
@@ -79,30 +92,39 @@ C_RANGE, C_RR = RAW_INDEX["range_m"], RAW_INDEX["range_rate_mps"]
 C_FZ, C_FY, C_FX = RAW_INDEX["fz_fl_N"], RAW_INDEX["fy_fl_N"], RAW_INDEX["fx_fl_N"]
 C_ALPHA, C_KAPPA, C_MU, C_OMEGA = (RAW_INDEX["alpha_fl_rad"], RAW_INDEX["kappa_fl"], RAW_INDEX["mu_fl"],
                                    RAW_INDEX["omega_fl_radps"])
+C_GAMMA, C_MZ = RAW_INDEX["gamma_fl_rad"], RAW_INDEX["mz_fl_Nm"]
 N_RAW = len(RAW_COLUMNS)
 
 # Float parameters (par) and integer parameters (ip) of the loop.
 (P_DT, P_L, P_TRACK, P_ACK, P_DMAX, P_DRATE, P_R, P_KT, P_CT, P_SIGMA, P_LS, P_MASS, P_TDRIVE, P_TBRAKE,
  P_MU0, P_DS, P_LOOK, P_PREVIEW, P_GAIN, P_OFFSET, P_KUS, P_BRAKE_T0, P_BRAKE_DEC, P_GAP, P_STANDSTILL,
- P_BUMPER, P_LEAD_HALF, P_HCG, P_GRIP, N_PAR) = range(30)
+ P_BUMPER, P_LEAD_HALF, P_HCG, P_GRIP, P_RR, P_DRAG, P_LIFT_F, P_LIFT_R, P_LF, P_LR, N_PAR) = range(36)
 (I_STEER_MODE, I_SPEED_MODE, I_CHASSIS, I_HAS_LEAD, I_ACC, I_WHEEL, I_HEAD, I_SPIN, I_STEERQ, I_STEERA,
- I_TORQUE) = (0, 1, 2, 3, 4, 5, 9, 13, 17, 19, 21)
-N_IP = 25
-# Loop state (st): relaxed slips (4+4), speed integrator, previous steer, unwrapped yaw, road hint,
-# last x, y, vx, vy (world) for the jump check.
-S_ALPHA, S_KAPPA, S_INT, S_DELTA, S_PSI, S_HINT, S_LASTX, S_LASTY, S_LASTVX, S_LASTVY, N_ST = (
-    0, 4, 8, 9, 10, 11, 12, 13, 14, 15, 16)
+ I_TORQUE, I_SUSPQ, I_TIRE_MODEL, I_FLAT) = (0, 1, 2, 3, 4, 5, 9, 13, 17, 19, 21, 25, 29, 30)
+N_IP = 31
+#: Tire models of the loop (``ip[I_TIRE_MODEL]``).
+TIRE_MODELS = {"magic_formula": 0}
+# Loop state (st): tire deflection states v (4, lateral) and u (4, longitudinal) [m], speed integrator,
+# previous steer, unwrapped yaw, road hint, last x, y, vx, vy (world) for the jump check, road hints
+# of the four wheels.
+S_ALPHA, S_KAPPA, S_INT, S_DELTA, S_PSI, S_HINT, S_LASTX, S_LASTY, S_LASTVX, S_LASTVY, S_WHINT, N_ST = (
+    0, 4, 8, 9, 10, 11, 12, 13, 14, 15, 16, 20)
 
 
 @jit
 def _run(step1: Any, step2: Any, m_ptr: int, d_ptr: int, k0: int, k1: int, par: np.ndarray, ip: np.ndarray,
-         st: np.ndarray, shape: np.ndarray, fz0: np.ndarray, drive_split: np.ndarray, brake_split: np.ndarray,
+         st: np.ndarray, shape: np.ndarray, fz0: np.ndarray, wheel: np.ndarray, drive_split: np.ndarray,
+         brake_split: np.ndarray,
          steer_open: np.ndarray, v_target: np.ndarray, dv_target: np.ndarray, lead: np.ndarray,
          samples: np.ndarray, verts: np.ndarray, meta: np.ndarray,
          qpos: np.ndarray, qvel: np.ndarray, qacc: np.ndarray, xpos: np.ndarray, xmat: np.ndarray,
          xipos: np.ndarray, cvel: np.ndarray, subtree_com: np.ndarray, xfrc: np.ndarray, ctrl: np.ndarray,
-         sensordata: np.ndarray, log: np.ndarray, qlog: np.ndarray) -> tuple[int, int]:
+         sensordata: np.ndarray, frictionloss: np.ndarray, log: np.ndarray, qlog: np.ndarray) -> tuple[int, int]:
     """Steps k0 .. k1-1; returns (first step not logged, divergence code or 0).
+
+    ``wheel`` (4, 6) per wheel: [camber at rest (roadtruth sign), camber per metre of axis travel,
+    low-speed damping time of the longitudinal and lateral deflection states [s], camber stiffness
+    c_γ [1/rad], pneumatic trail t_0 [m]] (see ``_wheel_table``).
 
     ``math.hypot`` is avoided on purpose: numba's version differs from CPython's in the last bit,
     which would break the bit-equality of the compiled and interpreted paths.
@@ -130,7 +152,10 @@ def _run(step1: Any, step2: Any, m_ptr: int, d_ptr: int, k0: int, k1: int, par: 
         if abs(pitch) > MAX_TILT_RAD:
             return k, 3
         x, y, z = xpos[cb, 0], xpos[cb, 1], xpos[cb, 2]
-        if z < 0.0 or z > par[P_HCG] + MAX_CG_HEIGHT_ABOVE_REST_M:
+        z_above = z
+        if ip[I_FLAT] == 0:
+            z_above = z - road_surface(samples, samples_ds, x, y, int(st[S_HINT]))[1]
+        if z_above < 0.0 or z_above > par[P_HCG] + MAX_CG_HEIGHT_ABOVE_REST_M:
             return k, 4
         if k > k0 and (math.sqrt((x - st[S_LASTX]) ** 2 + (y - st[S_LASTY]) ** 2) > MAX_STEP_JUMP_M
                        or math.sqrt((qvel[0] - st[S_LASTVX]) ** 2 + (qvel[1] - st[S_LASTVY]) ** 2) > MAX_STEP_DV_MPS):
@@ -204,56 +229,119 @@ def _run(step1: Any, step2: Any, m_ptr: int, d_ptr: int, k0: int, k1: int, par: 
         t_brake = max(-torque, 0.0)
         row[C_TD], row[C_TB] = t_drive, t_brake
         for i in range(4):
-            omega_rel = qvel[ip[I_SPIN + i]]
-            tb = min(brake_split[i] * t_brake, par[P_TBRAKE])
-            ctrl[ip[I_TORQUE + i]] = drive_split[i] * t_drive - tb * min(max(omega_rel / BRAKE_OMEGA_EPS, -1.0), 1.0)
-            row[C_OMEGA + i] = omega_rel
-        # ---- tires -------------------------------------------------------------------------------------
+            # Brakes are dry friction on the spin joint: the constraint solver holds a braked wheel at
+            # rest exactly (a torque law would need a stiff explicit damper around zero spin).
+            frictionloss[ip[I_SPIN + i]] = min(brake_split[i] * t_brake, par[P_TBRAKE])
+            ctrl[ip[I_TORQUE + i]] = drive_split[i] * t_drive
+            row[C_OMEGA + i] = qvel[ip[I_SPIN + i]]
+        # ---- tires (docs/PHYSICS.md, "Contact" and "Slip") -------------------------------------
         R = par[P_R]
+        sig = par[P_SIGMA]
         for i in range(4):
             wb = ip[I_WHEEL + i]
             hb = ip[I_HEAD + i]
             cx, cy, cz = xpos[wb, 0], xpos[wb, 1], xpos[wb, 2]
-            hx, hy = xmat[hb, 0], xmat[hb, 3]
-            hn = math.sqrt(hx * hx + hy * hy)
-            exx, exy = hx / hn, hy / hn
-            eyx, eyy = -exy, exx
-            ax_, ay_, az_ = xmat[hb, 1], xmat[hb, 4], xmat[hb, 7]  # axle direction
-            # Lowest point of the wheel circle: -z made orthogonal to the axle.
-            dx_, dy_, dz_ = az_ * ax_, az_ * ay_, -1.0 + az_ * az_
-            dn = math.sqrt(dx_ * dx_ + dy_ * dy_ + dz_ * dz_)
-            px = cx + R * dx_ / dn
-            py = cy + R * dy_ / dn
-            defl = -(cz + R * dz_ / dn)
-            # Velocity of the wheel centre (cvel is [w; v] at the subtree COM of the root body).
-            wx_, wy_, wz_ = cvel[wb, 0], cvel[wb, 1], cvel[wb, 2]
+            if ip[I_FLAT] == 1:
+                zr, nx, ny, nz = 0.0, 0.0, 0.0, 1.0
+            else:
+                iw, zr, nx, ny, nz = road_surface(samples, samples_ds, cx, cy, int(st[S_WHINT + i]))
+                st[S_WHINT + i] = iw
+            # Contact point: foot of the perpendicular from the wheel centre to the road plane.
+            h = (cz - zr) * nz
+            px, py, pz = cx - h * nx, cy - h * ny, cz - h * nz
+            defl = R - h
+            # Tire frame: heading of the wheel carrier projected on the road plane, y = n x x.
+            hx, hy, hz = xmat[hb, 0], xmat[hb, 3], xmat[hb, 6]
+            hd = hx * nx + hy * ny + hz * nz
+            exx, exy, exz = hx - hd * nx, hy - hd * ny, hz - hd * nz
+            en = math.sqrt(exx * exx + exy * exy + exz * exz)
+            exx, exy, exz = exx / en, exy / en, exz / en
+            eyx, eyy, eyz = ny * exz - nz * exy, nz * exx - nx * exz, nx * exy - ny * exx
+            # Inclination of the wheel plane to the road normal (> 0: top toward +y) plus kinematic camber.
+            an = xmat[hb, 1] * nx + xmat[hb, 4] * ny + xmat[hb, 7] * nz
+            gamma = -math.asin(min(max(an, -1.0), 1.0)) + wheel[i, 0] + wheel[i, 1] * qpos[ip[I_SUSPQ + i]]
+            # Velocity of the wheel centre (cvel is [w; v] at the subtree COM of the root body), then of
+            # the contact point as a point of the wheel carrier (the spin does not move it).
             ox, oy, oz = cx - subtree_com[cb, 0], cy - subtree_com[cb, 1], cz - subtree_com[cb, 2]
-            vcx = cvel[wb, 3] + wy_ * oz - wz_ * oy
-            vcy = cvel[wb, 4] + wz_ * ox - wx_ * oz
-            vcz = cvel[wb, 5] + wx_ * oy - wy_ * ox
-            spin = wx_ * ax_ + wy_ * ay_ + wz_ * az_
-            vxw = vcx * exx + vcy * exy
-            vyw = vcx * eyx + vcy * eyy
-            fz = radial_load_kernel(defl, -vcz, par[P_KT], par[P_CT])
+            vcx = cvel[wb, 3] + cvel[wb, 1] * oz - cvel[wb, 2] * oy
+            vcy = cvel[wb, 4] + cvel[wb, 2] * ox - cvel[wb, 0] * oz
+            vcz = cvel[wb, 5] + cvel[wb, 0] * oy - cvel[wb, 1] * ox
+            wcx, wcy, wcz = cvel[hb, 0], cvel[hb, 1], cvel[hb, 2]
+            rx, ry, rz = px - cx, py - cy, pz - cz
+            vpx = vcx + wcy * rz - wcz * ry
+            vpy = vcy + wcz * rx - wcx * rz
+            vpz = vcz + wcx * ry - wcy * rx
+            vxt = vpx * exx + vpy * exy + vpz * exz
+            vyt = vpx * eyx + vpy * eyy + vpz * eyz
+            fz = radial_load_kernel(defl, -(vcx * nx + vcy * ny + vcz * nz), par[P_KT], par[P_CT])
             re = R - max(defl, 0.0) / 3.0
-            vxa = max(abs(vxw), 1.0)
-            kappa = relax_kernel(st[S_KAPPA + i], (spin * re - vxw) / vxa, vxw, par[P_SIGMA], dt)
-            alpha = relax_kernel(st[S_ALPHA + i], -math.atan(vyw / vxa), vxw, par[P_SIGMA], dt)
-            st[S_KAPPA + i], st[S_ALPHA + i] = kappa, alpha
+            omega = qvel[ip[I_SPIN + i]]
+            vsx = vxt - omega * re
+            if sig > 0.0:
+                # Transient slip: tire deflections u, v driven by the slip velocities, relaxing at
+                # |v_x|/sigma (exact over the step), with damping below V_LOW (a damped spring at rest).
+                rate = abs(vxt) / sig
+                u, vv = st[S_KAPPA + i], st[S_ALPHA + i]
+                if rate * dt > 1e-12:
+                    ek = math.exp(-rate * dt)
+                    u = -vsx / rate + (u + vsx / rate) * ek
+                    vv = -vyt / rate + (vv + vyt / rate) * ek
+                else:
+                    u -= vsx * dt
+                    vv -= vyt * dt
+                u = min(max(u, -KAPPA_MAX * sig), KAPPA_MAX * sig)
+                vv = min(max(vv, -TAN_ALPHA_MAX * sig), TAN_ALPHA_MAX * sig)
+                st[S_KAPPA + i], st[S_ALPHA + i] = u, vv
+                w_low = 0.5 + 0.5 * math.cos(math.pi * min(abs(vxt) / V_LOW_MPS, 1.0))
+                kappa = (u - w_low * wheel[i, 2] * vsx) / sig
+                alpha = math.atan((vv - w_low * wheel[i, 3] * vyt) / sig)
+            else:
+                vxa = max(abs(vxt), V_MIN_SLIP_MPS)
+                kappa = -vsx / vxa
+                alpha = -math.atan(vyt / vxa)
             mu = mu_at(par[P_MU0], verts, meta, px, py, t)
             # The tire's grip multiplies the road's mu in the peak only (logged mu stays the road's).
-            fx, fy = _combined(alpha, kappa, fz, mu * par[P_GRIP], shape[i], fz0[i], par[P_LS])
-            if not (math.isfinite(fx) and math.isfinite(fy) and math.isfinite(fz)):
+            fx, fy, mz = combined_with_camber(alpha, kappa, gamma, fz, mu * par[P_GRIP], shape[i], fz0[i],
+                                              par[P_LS], wheel[i, 4], wheel[i, 5])
+            if not (math.isfinite(fx) and math.isfinite(fy) and math.isfinite(fz) and math.isfinite(mz)):
                 return k, 6  # MuJoCo would silently reset the state on a NaN force
-            Fx = fx * exx + fy * eyx
-            Fy = fx * exy + fy * eyy
-            xfrc[wb, 0], xfrc[wb, 1], xfrc[wb, 2] = Fx, Fy, fz
-            lx_, ly_, lz_ = px - xipos[wb, 0], py - xipos[wb, 1], -xipos[wb, 2]
-            xfrc[wb, 3] = ly_ * fz - lz_ * Fy
-            xfrc[wb, 4] = lz_ * Fx - lx_ * fz
-            xfrc[wb, 5] = lx_ * Fy - ly_ * Fx
+            Fx = fx * exx + fy * eyx + fz * nx
+            Fy = fx * exy + fy * eyy + fz * ny
+            Fz = fx * exz + fy * eyz + fz * nz
+            xfrc[wb, 0], xfrc[wb, 1], xfrc[wb, 2] = Fx, Fy, Fz
+            lx_, ly_, lz_ = px - xipos[wb, 0], py - xipos[wb, 1], pz - xipos[wb, 2]
+            xfrc[wb, 3] = ly_ * Fz - lz_ * Fy + mz * nx
+            xfrc[wb, 4] = lz_ * Fx - lx_ * Fz + mz * ny
+            xfrc[wb, 5] = lx_ * Fy - ly_ * Fx + mz * nz
+            # Rolling resistance: the load's forward shift in the patch, a torque against the spin.
+            ctrl[ip[I_TORQUE + i]] -= par[P_RR] * fz * re * math.tanh(omega / ROLLING_OMEGA_EPS)
             row[C_FZ + i], row[C_FY + i], row[C_FX + i] = fz, fy, fx
             row[C_ALPHA + i], row[C_KAPPA + i], row[C_MU + i] = alpha, kappa, mu
+            row[C_GAMMA + i], row[C_MZ + i] = gamma, mz
+        # ---- aero: drag against the chassis velocity at its COM, lift at the axles along body z ----
+        vv2 = vwx * vwx + vwy * vwy + vwz * vwz
+        if par[P_DRAG] > 0.0 or par[P_LIFT_F] != 0.0 or par[P_LIFT_R] != 0.0:
+            vmag = math.sqrt(vv2)
+            dfx, dfy, dfz = -par[P_DRAG] * vmag * vwx, -par[P_DRAG] * vmag * vwy, -par[P_DRAG] * vmag * vwz
+            lf_ = par[P_LIFT_F] * vx * vx
+            lr_ = par[P_LIFT_R] * vx * vx
+            tx = ty = tz = 0.0
+            for side in range(2):
+                arm = par[P_LF] if side == 0 else -par[P_LR]
+                lift = lf_ if side == 0 else lr_
+                # axle point in the world, relative to the chassis COM; force along body z
+                ax_w = x + r00 * arm - xipos[cb, 0]
+                ay_w = y + r10 * arm - xipos[cb, 1]
+                az_w = z + r20 * arm - xipos[cb, 2]
+                fxl, fyl, fzl = lift * r02, lift * r12, lift * r22
+                tx += ay_w * fzl - az_w * fyl
+                ty += az_w * fxl - ax_w * fzl
+                tz += ax_w * fyl - ay_w * fxl
+                dfx += fxl
+                dfy += fyl
+                dfz += fzl
+            xfrc[cb, 0], xfrc[cb, 1], xfrc[cb, 2] = dfx, dfy, dfz
+            xfrc[cb, 3], xfrc[cb, 4], xfrc[cb, 5] = tx, ty, tz
         for j in range(qpos.shape[0]):
             qlog[k, j] = qpos[j]
         step2(m_ptr, d_ptr)
@@ -344,6 +432,38 @@ def _initial_state(m: mujoco.MjModel, d: mujoco.MjData, v: VehicleParams, scenar
         d.qvel[m.jnt_dofadr[m.joint(f"spin_{c}").id]] = v0 / (v.wheel_radius_m - defl[i] / 3.0)
 
 
+def _wheel_table(v: VehicleParams, dt_s: float) -> np.ndarray:
+    """Per-wheel constants of the loop (4, 6); see ``_run``.
+
+    Camber: automotive camber (negative = top toward the car's centre) becomes roadtruth's sign
+    (positive = top toward +y) by the side: +1 on the left wheels, −1 on the right ones; the gain is
+    per metre of vertical travel, and the axis travel q moves the wheel q cos θ vertically.
+    Low-speed damping of the deflection states: for the tire spring C/σ against the quarter car's mass
+    the time 2ζ/ω_n gives the damping ratio ζ; longitudinally it is also kept below half the time
+    the wheel's spin inertia needs against it over one step, so the explicit coupling stays stable.
+    """
+    s, tires = v.suspension, v.tires
+    g = corner_geometry(v)
+    sig = tires.relaxation_length_m
+    out = np.zeros((4, 6))
+    for i in range(4):
+        front = i < 2
+        side = 1.0 if i % 2 == 0 else -1.0
+        ax = tires.front if front else tires.rear
+        out[i, 0] = side * (s.static_camber_f_rad if front else s.static_camber_r_rad)
+        out[i, 1] = side * (s.camber_gain_f_radpm if front else s.camber_gain_r_radpm) * math.cos(g.incline[i])
+        if sig > 0.0:
+            m_q = g.fz_static[i] / G
+            k_x = ax.Bx * ax.Cx * g.fz_static[i] / sig
+            k_y = ax.By * ax.Cy * g.fz_static[i] / sig
+            tau_x = 2.0 * STANDSTILL_DAMPING_RATIO / math.sqrt(k_x / m_q)
+            tau_spin = 0.5 * v.wheel_spin_inertia_kgm2 / (k_x * v.wheel_radius_m ** 2 * dt_s)
+            out[i, 2] = min(tau_x, tau_spin)
+            out[i, 3] = 2.0 * STANDSTILL_DAMPING_RATIO / math.sqrt(k_y / m_q)
+        out[i, 4], out[i, 5] = ax.camber_stiffness, ax.trail_m
+    return out
+
+
 def _events(scenario: Any, frame_mu: np.ndarray, t: np.ndarray, status_t: float | None,
             status: str) -> tuple[tuple[float, str], ...]:
     """Scenario events + friction changes under each wheel + driver actions (+ divergence)."""
@@ -397,12 +517,14 @@ def simulate(scenario: Any, vehicle: VehicleParams | str | None = None, seed: in
     ------
     ScenarioError : initial speed below 3 m/s, or a step that is not positive.
     """
-    if scenario.initial_speed_mps < MIN_START_SPEED_MPS:
-        raise ScenarioError(f"initial speed {scenario.initial_speed_mps:g} m/s is below the tire model's "
-                            f"limit ({MIN_START_SPEED_MPS:g} m/s)", source=scenario.path, field="initial_speed_mps")
     if not (dt_s > 0.0 and dt_s <= 0.01):
         raise ScenarioError(f"time step must be in (0, 0.01] s (got {dt_s!r})", field="dt_s")
     v = _resolve_vehicle(scenario, vehicle)
+    if v.tires.relaxation_length_m <= 0.0 and scenario.initial_speed_mps < MIN_START_SPEED_NO_RELAXATION_MPS:
+        raise ScenarioError(f"initial speed {scenario.initial_speed_mps:g} m/s is below "
+                            f"{MIN_START_SPEED_NO_RELAXATION_MPS:g} m/s, the limit of kinematic slips (vehicle "
+                            f"{v.name} has no relaxation length, so no transient slip at standstill)",
+                            source=scenario.path, field="initial_speed_mps")
     xml = build_mjcf(v, scenario, timestep_s=dt_s)
     m = mujoco.MjModel.from_xml_string(xml)
     d = mujoco.MjData(m)
@@ -430,6 +552,11 @@ def simulate(scenario: Any, vehicle: VehicleParams | str | None = None, seed: in
     par[P_BRAKE_T0], par[P_BRAKE_DEC] = drv.speed.t_start_s, drv.speed.decel_mps2
     par[P_GAP], par[P_STANDSTILL] = drv.speed.time_gap_s, drv.speed.standstill_m
     par[P_BUMPER], par[P_LEAD_HALF], par[P_HCG] = v.lf_m + FRONT_OVERHANG_M, LEAD_LENGTH_M / 2.0, v.h_cg_m
+    par[P_RR] = v.tires.rolling_resistance
+    half_rho = 0.5 * v.aero.air_density_kgpm3
+    par[P_DRAG], par[P_LIFT_F], par[P_LIFT_R] = (half_rho * v.aero.drag_area_m2, half_rho * v.aero.lift_area_f_m2,
+                                                 half_rho * v.aero.lift_area_r_m2)
+    par[P_LF], par[P_LR] = v.lf_m, v.lr_m
 
     ip = np.zeros(N_IP, dtype=np.int64)
     ip[I_STEER_MODE] = 1 if drv.closed_loop_steer else 0
@@ -442,6 +569,9 @@ def simulate(scenario: Any, vehicle: VehicleParams | str | None = None, seed: in
         ip[I_HEAD + i] = m.body(f"knuckle_{c}" if i < 2 else f"upright_{c}").id
         ip[I_SPIN + i] = m.jnt_dofadr[m.joint(f"spin_{c}").id]
         ip[I_TORQUE + i] = m.actuator(f"torque_{c}").id
+        ip[I_SUSPQ + i] = m.jnt_qposadr[m.joint(f"susp_{c}").id]
+    ip[I_TIRE_MODEL] = TIRE_MODELS["magic_formula"]
+    ip[I_FLAT] = 1 if scenario.road.is_flat else 0
     for i, c in enumerate(CORNERS[:2]):
         ip[I_STEERQ + i] = m.jnt_qposadr[m.joint(f"steer_{c}").id]
         ip[I_STEERA + i] = m.actuator(f"steer_{c}").id
@@ -454,10 +584,10 @@ def simulate(scenario: Any, vehicle: VehicleParams | str | None = None, seed: in
     log = np.full((n, N_RAW), np.nan)
     qlog = np.zeros((n, m.nq))
     args = (0, n, par, ip, st, shape_array(v.tires.front, v.tires.rear), np.ascontiguousarray(g.fz_static),
-            drive_split, brake_split, steer_open, v_target, dv_target, lead,
+            _wheel_table(v, dt_s), drive_split, brake_split, steer_open, v_target, dv_target, lead,
             np.ascontiguousarray(scenario.road.samples), verts, meta,
             d.qpos, d.qvel, d.qacc, d.xpos, d.xmat, d.xipos, d.cvel, d.subtree_com, d.xfrc_applied, d.ctrl,
-            d.sensordata, log, qlog)
+            d.sensordata, m.dof_frictionloss, log, qlog)
     if compiled:
         step1, step2 = _step_functions()
         k_end, code = _run(step1, step2, m._address, d._address, *args)

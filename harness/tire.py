@@ -116,6 +116,43 @@ def _combined(alpha: float, kappa: float, fz: float, mu: float, shape: np.ndarra
 
 
 @jit
+def brush_trail(t0: float, sn: float) -> float:
+    """Pneumatic trail [m] at normalised slip ``sn`` (1 = full sliding) of a brush tire with trail t0 at
+    zero slip: t = t0 (1 − θ)^3 / (1 − θ + θ²/3), θ = min(sn, 1) (Pacejka 2012, sec. 3.2.2)."""
+    th = min(abs(sn), 1.0)
+    return t0 * (1.0 - th) ** 3 / (1.0 - th + th * th / 3.0)
+
+
+@jit
+def combined_with_camber(alpha: float, kappa: float, gamma: float, fz: float, mu: float, shape: np.ndarray,
+                         fz0: float, load_sensitivity: float, camber_stiffness: float,
+                         trail_m: float) -> tuple[float, float, float]:
+    """(F_x, F_y, M_z) [N, N, N m] of one wheel of the per-axle Magic Formula tire.
+
+    Camber enters as an equivalent slip angle, tan α_γ = c_γ γ / (B_y C_y), so that at zero slip
+    F_y = c_γ F_z γ and the camber thrust shares the friction ellipse with the slips. γ > 0 leans the
+    top of the wheel toward +y (roadtruth convention, docs/PHYSICS.md). M_z = −t(s_n) F_y with the
+    brush-model trail (``brush_trail``) at the normalised combined slip s_n.
+    """
+    if fz <= 0.0:
+        return 0.0, 0.0, 0.0
+    ta = math.tan(alpha) + camber_stiffness * gamma / (shape[0] * shape[1])
+    mu_eff = max(mu, MU_FLOOR)
+    if load_sensitivity > 0.0 and fz0 > 0.0:
+        mu_eff *= max(1.0 - load_sensitivity * (fz - fz0) / fz0, LOAD_FACTOR_FLOOR)
+    spy = shape[6] * mu_eff
+    spx = shape[7] * mu_eff
+    den = max(1.0 + kappa, 0.05)
+    nx = kappa / den / spx
+    ny = ta / den / spy
+    sn = math.sqrt(nx * nx + ny * ny) + 1e-12
+    d = mu_eff * fz
+    fx = nx / sn * _mf(sn * spx, shape[3] / mu_eff, shape[4], d, shape[5])
+    fy = ny / sn * _mf(sn * spy, shape[0] / mu_eff, shape[1], d, shape[2])
+    return fx, fy, -brush_trail(trail_m, sn) * fy
+
+
+@jit
 def tire_forces_kernel(alpha: np.ndarray, kappa: np.ndarray, fz: np.ndarray, mu: np.ndarray, shape: np.ndarray,
                        fz0: np.ndarray, load_sensitivity: float, fx: np.ndarray, fy: np.ndarray) -> None:
     """Combined-slip forces of n wheels, written into ``fx``, ``fy`` (n,) [N]. ``shape`` (n, 8)."""

@@ -18,9 +18,12 @@ from harness.errors import InputError
 from harness.signals import CANONICAL, WHEELS
 from harness.truth_events import TruthEvent, scoring_end_s, truth_status
 
+#: Below this speed [m/s] sideslip and axle slip angles are not defined (NaN in the frame).
+ROLLING_SPEED_MPS = 0.5
+
 #: Per-wheel quantities; each is logged as four consecutive columns fl, fr, rl, rr.
 WHEEL_QUANTITIES: tuple[str, ...] = ("fz_{}_N", "fy_{}_N", "fx_{}_N", "alpha_{}_rad", "kappa_{}", "mu_{}",
-                                     "omega_{}_radps")
+                                     "omega_{}_radps", "gamma_{}_rad", "mz_{}_Nm")
 
 #: Columns written by the stepping loop, in this order.
 RAW_COLUMNS: tuple[str, ...] = (
@@ -45,6 +48,7 @@ EXTRA_COLUMNS: tuple[str, ...] = (
     "ax_body_mps2", "ay_body_mps2", "az_body_mps2",
     "fspec_x_body_mps2", "fspec_y_body_mps2", "fspec_z_body_mps2",
     "s_m", "lead_x_m", "lead_y_m", "lead_v_mps", "steer_cmd_rad", "drive_torque_Nm", "brake_torque_Nm",
+    *(q.format(w) for q in ("gamma_{}_rad", "mz_{}_Nm") for w in WHEELS),
 )
 FRAME_COLUMNS: tuple[str, ...] = (*CANONICAL.keys(), *EXTRA_COLUMNS)
 
@@ -59,17 +63,21 @@ def build_frame(raw: np.ndarray, lf_m: float, lr_m: float) -> pd.DataFrame:
 
     Returns
     -------
-    DataFrame with ``FRAME_COLUMNS``. Derived columns: β = atan2(v_y, v_x); δ = (δ_fl + δ_fr)/2;
+    DataFrame with ``FRAME_COLUMNS``. Derived columns: β = atan2(v_y, v_x) (NaN, like the axle slip
+    angles, where |v_x| < ROLLING_SPEED_MPS: a car at rest has no sideslip); δ = (δ_fl + δ_fr)/2;
     α_f = δ − atan((v_y + l_f r)/v_x), α_r = −atan((v_y − l_r r)/v_x) (CONTRACT.md); F_y,f/r = sums of
     the wheels' tire-frame lateral forces.
     """
     cols = {name: raw[:, i] for i, name in enumerate(RAW_COLUMNS)}
     vx, vy, r = cols["vx_mps"], cols["vy_mps"], cols["yaw_rate_radps"]
     delta = 0.5 * (cols["delta_fl_rad"] + cols["delta_fr_rad"])
-    cols["beta_rad"] = np.arctan2(vy, vx)
+    # Sideslip and axle slip angles are undefined at standstill: NaN below ROLLING_SPEED_MPS.
+    rolling = np.abs(vx) >= ROLLING_SPEED_MPS
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cols["beta_rad"] = np.where(rolling, np.arctan2(vy, vx), np.nan)
+        cols["alpha_f_rad"] = np.where(rolling, delta - np.arctan((vy + lf_m * r) / vx), np.nan)
+        cols["alpha_r_rad"] = np.where(rolling, -np.arctan((vy - lr_m * r) / vx), np.nan)
     cols["delta_rad"] = delta
-    cols["alpha_f_rad"] = delta - np.arctan((vy + lf_m * r) / vx)
-    cols["alpha_r_rad"] = -np.arctan((vy - lr_m * r) / vx)
     cols["fy_f_N"] = cols["fy_fl_N"] + cols["fy_fr_N"]
     cols["fy_r_N"] = cols["fy_rl_N"] + cols["fy_rr_N"]
     return pd.DataFrame({name: cols[name] for name in FRAME_COLUMNS})

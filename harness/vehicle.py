@@ -40,7 +40,12 @@ _T = TypeVar("_T")
 
 @dataclass(frozen=True)
 class AxleTire:
-    """Magic Formula shape of one axle's tires (pure slip). B [1/rad or 1], C, E [1]."""
+    """Magic Formula shape of one axle's tires (pure slip). B [1/rad or 1], C, E [1].
+
+    ``camber_stiffness`` is the camber thrust per unit load and radian of inclination at zero slip
+    (F_y,gamma = c_gamma F_z gamma) [1/rad]; ``trail_m`` the pneumatic trail at zero slip [m]
+    (the aligning moment is M_z = -t F_y, t falling to 0 at full sliding; docs/PHYSICS.md).
+    """
 
     By: float
     Cy: float
@@ -49,6 +54,8 @@ class AxleTire:
     Cx: float
     Ex: float
     stiffness_source: str  # "B given" or "B derived from cornering_stiffness_Npr"
+    camber_stiffness: float = 0.0
+    trail_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -60,6 +67,7 @@ class Tires:
     relaxation_length_m: float  # first-order lag of slip, time constant sigma/|vx|
     load_sensitivity: float  # peak mu falls by this fraction per 100 % load above static
     grip: float = 1.0  # peak force / (road mu * Fz): 1.0 road tires; racing tires reach ~1.3 on dry asphalt
+    rolling_resistance: float = 0.0  # rolling-resistance coefficient f_r (torque f_r Fz R_e against the spin)
 
 
 @dataclass(frozen=True)
@@ -71,6 +79,22 @@ class Suspension:
     arb_f_Npm: float  # anti-roll bar, on the left-right travel difference
     arb_r_Npm: float
     travel_m: float  # bump stop at +-travel
+    roll_centre_f_m: float = 0.0  # roll-centre height above the ground at rest [m]
+    roll_centre_r_m: float = 0.0
+    camber_gain_f_radpm: float = 0.0  # camber change per metre of bump travel (negative: more negative camber)
+    camber_gain_r_radpm: float = 0.0
+    static_camber_f_rad: float = 0.0  # negative: top of the wheel toward the car's centre
+    static_camber_r_rad: float = 0.0
+
+
+@dataclass(frozen=True)
+class Aero:
+    """Aerodynamic drag and lift (docs/PHYSICS.md). Areas are coefficient x frontal area [m^2]."""
+
+    drag_area_m2: float = 0.0  # C_d A
+    lift_area_f_m2: float = 0.0  # C_l,f A; > 0 lift, < 0 downforce, at the front axle
+    lift_area_r_m2: float = 0.0
+    air_density_kgpm3: float = 1.2
 
 
 @dataclass(frozen=True)
@@ -111,6 +135,7 @@ class VehicleParams:
     tires: Tires
     drivetrain: Drivetrain
     steering: Steering
+    aero: Aero = Aero()
     path: str = ""
     kind: str = "full"  # "replay": only the observers' fields were given, the rest derived
     derived_note: str = ""  # replay vehicles: which fields were derived and how (one line)
@@ -233,7 +258,9 @@ def _axle_tire(f: _AllFields, fz_axle: float) -> AxleTire:
     else:
         by, src = f.number("By", lo=1.0, hi=40.0), "B given"
     t = AxleTire(By=by, Cy=cy, Ey=f.number("Ey", lo=-10.0, hi=1.0), Bx=f.number("Bx", lo=1.0, hi=60.0),
-                 Cx=f.number("Cx", lo=0.5, hi=3.0), Ex=f.number("Ex", lo=-10.0, hi=1.0), stiffness_source=src)
+                 Cx=f.number("Cx", lo=0.5, hi=3.0), Ex=f.number("Ex", lo=-10.0, hi=1.0), stiffness_source=src,
+                 camber_stiffness=f.number("camber_stiffness", 0.0, lo=0.0, hi=5.0),
+                 trail_m=f.number("trail_m", 0.0, lo=0.0, hi=0.2))
     f.done()
     return t
 
@@ -269,6 +296,12 @@ def parse_vehicle(data: dict[str, Any], source: str) -> VehicleParams:
         arb_f_Npm=s.number("arb_f_Npm", 0.0, lo=0.0, hi=1e6),
         arb_r_Npm=s.number("arb_r_Npm", 0.0, lo=0.0, hi=1e6),
         travel_m=s.number("travel_m", 0.12, lo=0.01, hi=0.5),
+        roll_centre_f_m=s.number("roll_centre_f_m", 0.0, lo=-0.2, hi=1.0),
+        roll_centre_r_m=s.number("roll_centre_r_m", 0.0, lo=-0.2, hi=1.0),
+        camber_gain_f_radpm=s.number("camber_gain_f_radpm", 0.0, lo=-5.0, hi=5.0),
+        camber_gain_r_radpm=s.number("camber_gain_r_radpm", 0.0, lo=-5.0, hi=5.0),
+        static_camber_f_rad=s.number("static_camber_f_rad", 0.0, lo=-0.1, hi=0.1),
+        static_camber_r_rad=s.number("static_camber_r_rad", 0.0, lo=-0.1, hi=0.1),
     )
     s.done()
     t = f.sub("tires")
@@ -280,8 +313,17 @@ def parse_vehicle(data: dict[str, Any], source: str) -> VehicleParams:
         relaxation_length_m=t.number("relaxation_length_m", 0.3, lo=0.0, hi=3.0),
         load_sensitivity=t.number("load_sensitivity", 0.0, lo=0.0, hi=0.5),
         grip=t.number("grip", 1.0, lo=0.3, hi=2.0),
+        rolling_resistance=t.number("rolling_resistance", 0.0, lo=0.0, hi=0.1),
     )
     t.done()
+    a = f.sub("aero", {})
+    aero = Aero(
+        drag_area_m2=a.number("drag_area_m2", 0.0, lo=0.0, hi=20.0),
+        lift_area_f_m2=a.number("lift_area_f_m2", 0.0, lo=-10.0, hi=10.0),
+        lift_area_r_m2=a.number("lift_area_r_m2", 0.0, lo=-10.0, hi=10.0),
+        air_density_kgpm3=a.number("air_density_kgpm3", 1.2, lo=0.5, hi=1.5),
+    )
+    a.done()
     d = f.sub("drivetrain")
     drive = Drivetrain(
         layout=d.string("layout", choices=DRIVE_LAYOUTS),
@@ -317,6 +359,7 @@ def parse_vehicle(data: dict[str, Any], source: str) -> VehicleParams:
         tires=tires,
         drivetrain=drive,
         steering=steer,
+        aero=aero,
         path=source,
         kind=kind,
         derived_note=note,

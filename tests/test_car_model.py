@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import xml.etree.ElementTree as ET
 
 import mujoco
@@ -53,9 +54,19 @@ def test_suspension_holds_the_sprung_load_at_zero_travel() -> None:
     np.testing.assert_allclose(g.tire_deflection * v.tires.radial_stiffness_Npm, g.fz_static)
     for i, c in enumerate(("fl", "fr", "rl", "rr")):
         j = m.joint(f"susp_{c}")
+        # The axis is inclined by θ (roll centre): the spring along it carries the load's axial part,
+        # and its rate along the axis is the vertical wheel rate times cos^2 θ.
+        th = g.incline[i]
+        axis = m.jnt_axis[j.id]
+        assert axis[2] == pytest.approx(math.cos(th)) and abs(axis[1]) == pytest.approx(math.sin(th))
+        assert np.sign(axis[1]) == np.sign(g.position[i, 1])  # bump moves the wheel outward
         spring_force = -m.jnt_stiffness[j.id] * (0.0 - m.qpos_spring[m.jnt_qposadr[j.id]])
-        assert -spring_force == pytest.approx(g.fz_static[i] - v.unsprung_mass_kg * G, rel=1e-7)
-        np.testing.assert_allclose(m.jnt_range[j.id], [-v.suspension.travel_m, v.suspension.travel_m])
+        assert -spring_force == pytest.approx((g.fz_static[i] - v.unsprung_mass_kg * G) * math.cos(th), rel=1e-7)
+        k = v.suspension.stiffness_f_Npm if i < 2 else v.suspension.stiffness_r_Npm
+        assert m.jnt_stiffness[j.id] == pytest.approx(k * math.cos(th) ** 2, rel=1e-9)
+        h_rc = v.suspension.roll_centre_f_m if i < 2 else v.suspension.roll_centre_r_m
+        assert math.tan(th) == pytest.approx(2.0 * h_rc / (v.track_f_m if i < 2 else v.track_r_m), rel=1e-9)
+        np.testing.assert_allclose(m.jnt_range[j.id], np.array([-1.0, 1.0]) * v.suspension.travel_m / math.cos(th))
         # Wheel centre at rest: radius minus the static tire compression.
         assert g.position[i, 2] + v.h_cg_m == pytest.approx(v.wheel_radius_m - g.tire_deflection[i])
 
@@ -76,8 +87,9 @@ def test_model_structure_and_options() -> None:
         assert m.actuator(name).gainprm[0] > 0  # position servo
     assert {m.camera(i).name for i in range(m.ncam)} == {"chase", "top"}
     assert {m.site(i).name for i in range(m.nsite)} == {"imu", "gnss"}
-    assert m.tendon_stiffness[m.tendon("arb_f").id] == v.suspension.arb_f_Npm
-    assert m.tendon_stiffness[m.tendon("arb_r").id] == v.suspension.arb_r_Npm
+    th = corner_geometry(v).incline
+    assert m.tendon_stiffness[m.tendon("arb_f").id] == pytest.approx(v.suspension.arb_f_Npm * math.cos(th[0]) ** 2)
+    assert m.tendon_stiffness[m.tendon("arb_r").id] == pytest.approx(v.suspension.arb_r_Npm * math.cos(th[2]) ** 2)
 
 
 def test_scenario_visuals_markings_patches_and_lead() -> None:

@@ -7,7 +7,15 @@ import math
 import numpy as np
 import pytest
 
-from harness.driver import ackermann_angles, parse_driver, parse_lead, rate_limit, speed_controller
+from harness.driver import (
+    HOLD_DECEL_MPS2,
+    MAX_DECEL_DEMAND,
+    ackermann_angles,
+    parse_driver,
+    parse_lead,
+    rate_limit,
+    speed_controller,
+)
 from harness.errors import ScenarioError
 
 DT = 0.001
@@ -128,10 +136,16 @@ def test_rate_limit_and_clip() -> None:
     assert x == 0.5
 
 
-def test_speed_controller_brakes_with_the_demand_and_fades_at_low_speed() -> None:
+def test_speed_controller_brakes_to_a_stop_and_holds() -> None:
     a, _ = speed_controller(1, 2.0, 20.0, 20.0, 0.0, 0.0, 1.0, 6.0, DT)
     assert a == -6.0
-    a, _ = speed_controller(1, 2.0, 1.0, 20.0, 0.0, 0.0, 1.0, 6.0, DT)
-    assert a == 0.0
+    # The brake demand stays on down to standstill: the brakes (joint friction) then hold the car.
+    a, _ = speed_controller(1, 2.0, 0.0, 20.0, 0.0, 0.0, 1.0, 6.0, DT)
+    assert a == -6.0
+    # A stop target reached: the driver holds the car on the brake, the integrator is reset.
+    a, i = speed_controller(0, 5.0, 0.2, 0.0, 0.0, 3.0, 0.0, 0.0, DT)
+    assert a == -HOLD_DECEL_MPS2 and i == 0.0
+    a, _ = speed_controller(0, 5.0, 2.0, 0.0, 0.0, 0.0, 0.0, 0.0, DT)
+    assert -MAX_DECEL_DEMAND <= a < 0.0  # still rolling toward the stop: the PI brakes
     a, _ = speed_controller(0, 0.0, 18.0, 20.0, 0.0, 0.0, 0.0, 0.0, DT)
     assert a > 0.0
