@@ -276,3 +276,30 @@ def banked_neutral_speed(radius_m: float, bank_rad: float) -> float:
     if not (radius_m > 0.0 and abs(bank_rad) < 0.5 * math.pi):
         raise ValueError(f"need radius > 0 and |bank| < 90 deg (got R={radius_m!r} m, bank={bank_rad!r} rad)")
     return math.sqrt(G * radius_m * math.tan(abs(bank_rad)))
+
+
+def linear_understeer_gradient(v: VehicleParams, roll_gradient_radpmps2: float | None = None) -> float:
+    """Understeer gradient K [rad/(m/s^2)] of the linear car with aligning torque and roll camber.
+
+    The bicycle part K_0 = m/L (l_r/C_f − l_f/C_r) (``VehicleParams.understeer_gradient_radpmps2``);
+    the aligning moments −t F_y of all four tires (pneumatic trail t) need F_y,f = m a_y (l_r + t)/L and
+    F_y,r = m a_y (l_f − t)/L, which adds m t/L (1/C_f + 1/C_r); body roll φ = (dφ/da_y) a_y leans both
+    wheels of an axle outward by (1 + g_c T/2) φ (camber gain g_c per metre of bump, track T), a camber
+    thrust c_γ F_z,axle (1 + g_c T/2) φ against the turn that the axle makes up with slip. These are
+    the "aligning torque" and "camber thrust" terms of Gillespie (1992, ch. 6). Steady yaw rate:
+    r = v δ / (L + K v^2), δ the road-wheel angle.
+
+    ``roll_gradient_radpmps2`` defaults to :func:`roll_gradient` of the car.
+    """
+    phi = roll_gradient(v) if roll_gradient_radpmps2 is None else roll_gradient_radpmps2
+    s, L = v.suspension, v.wheelbase_m
+    cf, cr = v.cornering_stiffness_f_Npr, v.cornering_stiffness_r_Npr
+    t_f, t_r = v.tires.front.trail_m, v.tires.rear.trail_m
+    # Yaw moment balance with each axle's trail: (l_f − t_f) F_f = (l_r + t_r) F_r, F_f + F_r = m a_y.
+    span = L + t_r - t_f
+    k_bicycle_aligning = v.mass_kg / span * ((v.lr_m + t_r) / cf - (v.lf_m - t_f) / cr)
+    lean_f = 1.0 + s.camber_gain_f_radpm * v.track_f_m / 2.0
+    lean_r = 1.0 + s.camber_gain_r_radpm * v.track_r_m / 2.0
+    k_camber = phi * (v.tires.front.camber_stiffness * v.fz_front_static_N * lean_f / cf
+                      - v.tires.rear.camber_stiffness * v.fz_rear_static_N * lean_r / cr)
+    return k_bicycle_aligning + k_camber

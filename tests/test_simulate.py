@@ -14,6 +14,7 @@ from harness.friction_map import FrictionMap, Patch
 from harness.scenario import load_scenario, parse_scenario
 from harness.signals import CANONICAL
 from harness.simulate import simulate
+from harness.suspension_statics import linear_understeer_gradient
 from harness.vehicle import Aero, G, load_vehicle
 
 
@@ -66,25 +67,6 @@ def test_starts_in_static_equilibrium(sedan) -> None:
     assert np.allclose(total, sedan.mass_kg * G, rtol=2e-3)
 
 
-def _linear_understeer_gradient(v, roll_gradient_radpmps2: float) -> float:
-    """Understeer gradient [rad/(m/s^2)] of the linear car with aligning torque and roll camber.
-
-    Bicycle part K0 = m/L (l_r/C_f − l_f/C_r); the aligning moments −t F_y of all four tires need
-    F_y,f = m a_y (l_r + t)/L, F_y,r = m a_y (l_f − t)/L, which adds m t/L (1/C_f + 1/C_r); body roll φ
-    leans both wheels of an axle outward by (1 + g_c T/2) φ (camber gain g_c per metre of bump,
-    track T), a camber thrust c_γ F_z,axle (1 + g_c T/2) φ against the turn that each axle makes up
-    with slip (Gillespie 1992, ch. 6, "camber thrust" and "aligning torque" terms).
-    """
-    s, L = v.suspension, v.wheelbase_m
-    cf, cr = v.cornering_stiffness_f_Npr, v.cornering_stiffness_r_Npr
-    k_aligning = v.mass_kg * v.tires.front.trail_m / L * (1.0 / cf + 1.0 / cr)
-    lean_f = 1.0 + s.camber_gain_f_radpm * v.track_f_m / 2.0
-    lean_r = 1.0 + s.camber_gain_r_radpm * v.track_r_m / 2.0
-    k_camber = roll_gradient_radpmps2 * (v.tires.front.camber_stiffness * v.fz_front_static_N * lean_f / cf
-                                         - v.tires.rear.camber_stiffness * v.fz_rear_static_N * lean_r / cr)
-    return v.understeer_gradient_radpmps2 + k_aligning + k_camber
-
-
 def _lateral_only(v):
     """The car without drag and rolling resistance: their drive force takes a share of the rear tires'
     friction (combined slip) that a linear lateral model does not have."""
@@ -97,7 +79,7 @@ def test_linear_step_steer_matches_bicycle_model(step_1deg, sedan) -> None:
     r_ss = late.yaw_rate_radps.mean()
     vx, delta = late.vx_mps.mean(), late.delta_rad.mean()
     roll_gradient = abs(late.roll_rad.mean() / late.ay_mps2.mean())
-    k = _linear_understeer_gradient(sedan, roll_gradient)
+    k = linear_understeer_gradient(sedan, roll_gradient)
     # The linear car with the aligning torque and roll camber of its tires: within 1 %.
     assert r_ss == pytest.approx(vx * delta / (sedan.wheelbase_m + k * vx**2), rel=0.01)
     # The bare bicycle model (no aligning torque, no camber) misses those terms: 3-8 % more yaw rate.
@@ -162,9 +144,9 @@ def test_ramp_steer_gain_falls_below_linear_model(sedan) -> None:
                   _lateral_only(sedan))
     f = tr.frame
     # The linear single-track model with the car's effective axle stiffness (aligning torque and roll
-    # camber as in _linear_understeer_gradient, folded into the rear axle's stiffness).
+    # camber as in linear_understeer_gradient, folded into the rear axle's stiffness).
     lin = f[(f.ay_mps2 > 1.0) & (f.ay_mps2 < 2.5)]
-    k = _linear_understeer_gradient(sedan, float(np.median(np.abs(lin.roll_rad / lin.ay_mps2))))
+    k = linear_understeer_gradient(sedan, float(np.median(np.abs(lin.roll_rad / lin.ay_mps2))))
     cf = sedan.cornering_stiffness_f_Npr
     cr_eff = sedan.lf_m / (sedan.lr_m / cf - k * sedan.wheelbase_m / sedan.mass_kg)
     eff = dataclasses.replace(sedan, tires=dataclasses.replace(
