@@ -17,7 +17,9 @@ thresholds below can change without touching the simulation. Each event is a :cl
 ``rolled over``
     The simulator's roll guard tripped (roll past 80 degrees; the frame ends there).
 ``stopped``
-    The speed falls below ``STOPPED_SPEED_MPS`` after having been above ``MOVED_SPEED_MPS``.
+    The speed falls below ``STOPPED_SPEED_MPS`` after having been above ``MOVED_SPEED_MPS`` (each stop
+    of a stop-and-go drive). At rest sideslip is undefined (NaN in the truth), so those samples are
+    not scored, and an observer silent there is not counted as missing.
 
 Road-relative checks need a road the car is asked to follow: with an open-loop steering profile the
 road is only a nominal straight line (a step steer drives a circle off it by design), so they apply
@@ -183,13 +185,29 @@ def detect_events(frame: pd.DataFrame, *, fz_static_N: Sequence[float] | None = 
                       else np.median(fz[: max(1, t.size // 20)], axis=0))
             events.extend(detect_wheel_lift(t, fz, static))
         if vx is not None and vy is not None:
-            moved = np.maximum.accumulate(speed) > MOVED_SPEED_MPS
-            k = _first(moved & (speed < STOPPED_SPEED_MPS))
-            if k is not None:
-                events.append(TruthEvent(float(t[k]), "stopped"))
+            events.extend(TruthEvent(float(t[k]), "stopped") for k in _stops(speed))
     if divergence is not None and divergence[1] == "rolled over":
         events.append(TruthEvent(float(divergence[0]), "rolled over"))
     return tuple(sorted(events, key=lambda e: (e.t_s, KINDS.index(e.kind))))
+
+
+def _stops(speed: np.ndarray) -> list[int]:
+    """Indices where the speed falls below STOPPED_SPEED_MPS after being above MOVED_SPEED_MPS since
+    the previous stop (every stop of a stop-and-go drive, none for a car standing still)."""
+    out: list[int] = []
+    k = 0
+    n = speed.size
+    while k < n:
+        moved = np.flatnonzero(speed[k:] > MOVED_SPEED_MPS)
+        if not moved.size:
+            break
+        k += int(moved[0])
+        slow = np.flatnonzero(speed[k:] < STOPPED_SPEED_MPS)
+        if not slow.size:
+            break
+        k += int(slow[0])
+        out.append(k)
+    return out
 
 
 def scoring_end_s(events: Iterable[TruthEvent]) -> float | None:

@@ -171,3 +171,15 @@ def test_a_spin_out_is_an_event_and_ends_scoring(tmp_path: Path):
     # the tail is what the old score was made of: the whole record scores far worse
     whole = float(np.sqrt(np.nanmean(err[idx >= 0] ** 2)))  # beta is NaN where the spinning car stands
     assert whole > 3.0 * manual
+
+
+def test_every_stop_of_a_stop_and_go_drive_is_an_event():
+    n = 12000
+    t = np.arange(n) * DT
+    # 5 m/s, stop at t = 2.5 s, rest, pull away from t = 5 s to 4 m/s, second stop at t = 10 s
+    v = np.interp(t, [0.0, 2.5, 5.0, 7.0, 8.0, 10.0, 12.0], [5.0, 0.0, 0.0, 4.0, 4.0, 0.0, 0.0])
+    f = frame(n, vx_mps=v, vy_mps=np.zeros(n), beta_rad=np.zeros(n))
+    stops = [round(e.t_s, 2) for e in detect_events(f) if e.kind == "stopped"]
+    assert stops == [2.35, 9.85]
+    # a car standing still the whole time never "stopped"
+    assert not [e for e in detect_events(frame(n, vx_mps=np.zeros(n), vy_mps=np.zeros(n), beta_rad=np.zeros(n)))]
