@@ -71,6 +71,12 @@ def _mf(x: float, B: float, C: float, D: float, E: float) -> float:
 
 
 @jit
+def _cos_atan(x: float) -> float:
+    """cos(atan x) = 1/√(1 + x²), without the two transcendental calls."""
+    return 1.0 / math.sqrt(1.0 + x * x)
+
+
+@jit
 def _cos_mf(x: float, B: float, C: float, E: float) -> float:
     """cos(C atan(B x − E (B x − atan B x))): the combined-slip weighting shape (4.E52, 4.E62)."""
     bx = B * x
@@ -170,7 +176,7 @@ def _trail_and_residual(c: np.ndarray, fz: float, a_s: float, gs: float, cos_a: 
     dr = (fz * r0 * ((c[QDZ6] + c[QDZ7] * dfz) * c[LRES]
                      + ((c[QDZ8] + c[QDZ9] * dfz) * (1.0 + c[PPZ2] * dpi) + (c[QDZ10] + c[QDZ11] * dfz) * abs(gs))
                      * gs * c[LKZC]) * lmuy * sgn_vx * cos_a)
-    mzr = dr * math.cos(math.atan(br * ar_eq)) * cos_a
+    mzr = dr * _cos_atan(br * ar_eq) * cos_a
     return t, mzr
 
 
@@ -197,7 +203,7 @@ def mf61_pure_forces(coef: np.ndarray, fz: float, kappa: float, alpha: float, ga
     lmuy = coef[LMUY] * lmu_y
     fx0 = _fx0(coef, fz, kappa, gs, lmux)
     fy0, _muy, by, cy, _kya_v, shf = _fy0(coef, fz, a_s, gs, lmuy)
-    fy0_g0 = _fy0(coef, fz, a_s, 0.0, lmuy)[0]
+    fy0_g0 = fy0 if gs == 0.0 else _fy0(coef, fz, a_s, 0.0, lmuy)[0]
     t, mzr = _trail_and_residual(coef, fz, a_s, gs, cos_a, sgn_vx, lmuy, by, cy, a_s + shf, 0.0)
     return fx0, fy0, -t * fy0_g0 + mzr
 
@@ -227,26 +233,27 @@ def mf61_forces(coef: np.ndarray, fz: float, kappa: float, alpha: float, gamma: 
     fy0, muy, by, cy, kya, shf = _fy0(c, fz, a_s, gs, lmuy)
     # F_x, combined (4.E50–57)
     shxa = c[RHX1]
-    bxa = (c[RBX1] + c[RBX3] * gs * gs) * math.cos(math.atan(c[RBX2] * kappa)) * c[LXAL]
+    bxa = (c[RBX1] + c[RBX3] * gs * gs) * _cos_atan(c[RBX2] * kappa) * c[LXAL]
     cxa = c[RCX1]
     exa = min(c[REX1] + c[REX2] * dfz, 1.0)
     gxa = _cos_mf(a_s + shxa, bxa, cxa, exa) / _cos_mf(shxa, bxa, cxa, exa)
     fx = gxa * fx0
     # F_y, combined (4.E58–67)
     shyk = c[RHY1] + c[RHY2] * dfz
-    byk = (c[RBY1] + c[RBY4] * gs * gs) * math.cos(math.atan(c[RBY2] * (a_s - c[RBY3]))) * c[LYKA]
+    byk = (c[RBY1] + c[RBY4] * gs * gs) * _cos_atan(c[RBY2] * (a_s - c[RBY3])) * c[LYKA]
     cyk = c[RCY1]
     eyk = min(c[REY1] + c[REY2] * dfz, 1.0)
     ks = kappa + shyk
     gyk = _cos_mf(ks, byk, cyk, eyk) / _cos_mf(shyk, byk, cyk, eyk)
-    dvyk = muy * fz * (c[RVY1] + c[RVY2] * dfz + c[RVY3] * gs) * math.cos(math.atan(c[RVY4] * a_s))
+    dvyk = muy * fz * (c[RVY1] + c[RVY2] * dfz + c[RVY3] * gs) * _cos_atan(c[RVY4] * a_s)
     svyk = dvyk * math.sin(c[RVY5] * math.atan(c[RVY6] * kappa)) * c[LVYKA]
     fy = gyk * fy0 + svyk
     # M_z, combined (4.E71–78)
     kya_p = kya + EPS * (1.0 if kya >= 0.0 else -1.0)
     kx_equiv = _kxk(c, fz) / kya_p * kappa
     t, mzr = _trail_and_residual(c, fz, a_s, gs, cos_a, sgn_vx, lmuy, by, cy, a_s + shf, kx_equiv)
-    fy_prime = gyk * _fy0(c, fz, a_s, 0.0, lmuy)[0]
+    # F'_y0 at γ = 0 (4.E74); the same as F_y0 when the wheel is upright
+    fy_prime = gyk * (fy0 if gs == 0.0 else _fy0(c, fz, a_s, 0.0, lmuy)[0])
     s = c[R0] * (c[SSZ1] + c[SSZ2] * (fy / fz0) + (c[SSZ3] + c[SSZ4] * dfz) * gs) * c[LS]
     mz = -t * fy_prime + mzr + s * fx
     return fx, fy, mz
