@@ -9,10 +9,26 @@ a piecewise quadratic:
 and the position is the Fresnel-type integral :math:`(x, y)(s) = \\int (\\cos\\psi, \\sin\\psi)\\,ds`,
 evaluated with 8-point Gauss-Legendre quadrature on every sub-interval between samples and
 segment joints (the integrand is analytic there, so the result is exact to rounding for any road
-of practical curvature). The road is then stored as uniform samples ``[s, x, y, psi, rho]`` which
-the compiled simulation loop reads through :func:`road_project`.
+of practical curvature). The road is then stored as uniform samples
+``[s, x, y, psi, rho, z, grade, bank]`` which the compiled simulation loop reads through
+:func:`road_project` (the plane centre line) and :func:`road_surface` (the 3D surface).
 
-Past either end the road continues as a straight line along the end heading with zero curvature.
+In 3D (``harness.road_profile``) the centre line carries an elevation z_c(s) and a bank angle
+φ_b(s) (positive = left edge higher, ISO 8855). With e the signed lateral offset (left positive) of
+the foot of the perpendicular on the centre line, the surface is
+
+.. math::  z(x, y) = z_c(s) + e \\tan\\varphi_b(s),
+
+and its unit upward normal is :math:`n = (-\\partial_x z, -\\partial_y z, 1)/\\lVert\\cdot\\rVert` with the
+exact gradient (t = (cos ψ, sin ψ), l = (−sin ψ, cos ψ); a step along t at offset e advances s by
+1/(1 − ρ e)):
+
+.. math::  \\nabla z = \\frac{z_c'(s) + e\\,\\varphi_b'(s)\\sec^2\\varphi_b}{1 - \\rho e}\\,t + \\tan\\varphi_b\\,l .
+
+On a constant bank the first term is the grade z_c' alone; on a straight the divisor is 1.
+
+Past either end the road continues as a straight line along the end heading with zero curvature,
+its end grade and bank (the elevation continues linearly with the end grade).
 Heading ``psi`` is unwrapped (continuous), so a full circle ends at ``psi_0 + 2*pi``.
 """
 
@@ -20,12 +36,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from numba import njit
 from scipy.spatial import cKDTree
 
+from harness.road_profile import COL_Z, RoadProfile, profile_at, profile_np
+
 SEGMENT_KINDS = ("straight", "arc", "clothoid")
+
+# Where 1 - rho*e (the metric factor of the path coordinate at offset e) would vanish, i.e. at the
+# centre of curvature, the surface gradient is taken with this floor: such a point is off any road.
+_MIN_METRIC = 0.05
 
 # Beyond this distance from the centre line the local search is not trusted and a global scan
 # decides (a car that left the road, or a stale hint); ~ two lane widths.
@@ -50,12 +73,15 @@ class Road:
 
     Attributes
     ----------
-    samples : (n, 5) float64 array ``[s_m, x_m, y_m, psi_rad, rho_1pm]`` at uniform ``ds_m`` from s = 0
-        (read-only). ``psi`` is unwrapped; ``rho > 0`` turns left.
+    samples : (n, 8) float64 array ``[s_m, x_m, y_m, psi_rad, rho_1pm, z_m, grade, bank_rad]`` at
+        uniform ``ds_m`` from s = 0 (read-only). ``psi`` is unwrapped; ``rho > 0`` turns left;
+        ``z_m`` is the centre-line elevation, ``grade`` its slope dz/ds [-], ``bank_rad`` the bank
+        angle (> 0: left edge higher, ISO 8855). On a flat road the last three are exactly 0.
     ds_m : sample spacing [m].
     lane_width_m : lane width [m] (the centre line is the lane centre).
     lookahead_m : camera look-ahead distance l_s ahead of the CG [m].
     segments : the segments the road was built from (for display).
+    profile : the elevation and bank control points the road was built from.
     """
 
     samples: np.ndarray
@@ -63,6 +89,13 @@ class Road:
     lane_width_m: float = 3.5
     lookahead_m: float = 0.5
     segments: tuple[Segment, ...] = field(default=())
+    profile: RoadProfile = RoadProfile()
+
+    @cached_property
+    def is_flat(self) -> bool:
+        """True when elevation, grade and bank are zero everywhere (the road is the plane z = 0):
+        the stepping loop may then skip :func:`road_surface` (it would return z = 0, n = (0, 0, 1))."""
+        return not bool(np.any(self.samples[:, COL_Z:]))
 
     @property
     def length_m(self) -> float:
@@ -83,7 +116,7 @@ class Road:
             return self
         x0, y0, psi0 = (float(v) for v in self.samples[0, 1:4])
         return build_road((x0, y0, psi0), [*self.segments, Segment("straight", missing)], ds_m=self.ds_m,
-                          lane_width_m=self.lane_width_m, lookahead_m=self.lookahead_m)
+                          lane_width_m=self.lane_width_m, lookahead_m=self.lookahead_m, profile=self.profile)
 
     # ---- evaluation --------------------------------------------------------------------------
 
@@ -135,6 +168,12 @@ class Road:
         dict of (m,) arrays: ``i`` (nearest sample index), ``s_m``, ``e_left_m`` (signed lateral
         offset, > 0 left of the centre line), ``psi_rad`` (road heading), ``rho_1pm`` (curvature).
         """
+        i, s, e, psi, rho, _ = self._project_arrays(x_m, y_m, s_hint_m)
+        return {"i": i, "s_m": s, "e_left_m": e, "psi_rad": psi, "rho_1pm": rho}
+
+    def _project_arrays(self, x_m: np.ndarray | float, y_m: np.ndarray | float,
+                        s_hint_m: np.ndarray | float | None) -> tuple[np.ndarray, ...]:
+        """:meth:`project` as a tuple, plus the curvature of the circle each foot was found on."""
         x = np.atleast_1d(np.asarray(x_m, dtype=np.float64))
         y = np.atleast_1d(np.asarray(y_m, dtype=np.float64))
         x, y = np.broadcast_arrays(x, y)
@@ -147,8 +186,32 @@ class Road:
             hint = np.clip(np.rint(np.broadcast_to(np.asarray(s_hint_m, np.float64), x.shape) / self.ds_m),
                            0, n - 1).astype(np.int64)
             i = _nearest_in_window(smp, x, y, hint, half_width=int(round(_GLOBAL_SEARCH_DISTANCE_M * 4 / self.ds_m)))
-        s, e, psi, rho = _refine(smp, self.ds_m, x, y, i)
-        return {"i": i, "s_m": s, "e_left_m": e, "psi_rad": psi, "rho_1pm": rho}
+        return (i, *_refine(smp, self.ds_m, x, y, i))
+
+    def surface(self, x_m: np.ndarray | float, y_m: np.ndarray | float,
+                s_hint_m: np.ndarray | float | None = None) -> dict[str, np.ndarray]:
+        """Road surface height and unit upward normal under world points (NumPy twin of
+        :func:`road_surface`; equations in the module docstring).
+
+        Parameters
+        ----------
+        x_m, y_m : (m,) arrays (or floats) of world positions [m].
+        s_hint_m : optional path coordinates near the answer [m] (see :meth:`project`).
+
+        Returns
+        -------
+        dict: ``z_m`` (m,) surface height [m], ``normal`` (m, 3) unit upward normal (world frame).
+        """
+        _, s, e, psi, _, rho_osc = (np.ravel(v) for v in self._project_arrays(x_m, y_m, s_hint_m))
+        zc, g, b, db = profile_np(self.samples, self.ds_m, s)
+        tb = np.tan(b)
+        z = zc + e * tb
+        a = (g + e * db * (1.0 + tb * tb)) / np.maximum(1.0 - rho_osc * e, _MIN_METRIC)
+        c, sn = np.cos(psi), np.sin(psi)
+        gx = a * c - tb * sn
+        gy = a * sn + tb * c
+        inv = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy)
+        return {"z_m": z, "normal": np.column_stack([(0.0 - gx) * inv, (0.0 - gy) * inv, inv])}
 
 
 _TREES: dict[int, tuple[np.ndarray, cKDTree]] = {}
@@ -196,7 +259,7 @@ def _nearest_in_window(smp: np.ndarray, x: np.ndarray, y: np.ndarray, hint: np.n
 def _foot(smp: np.ndarray, j: np.ndarray, x: np.ndarray, y: np.ndarray,
           end: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Foot of the perpendicular on the circle osculating at sample ``j`` (straight where ``end``):
-    offset along the road from sample j, signed lateral offset, road heading."""
+    offset along the road from sample j, signed lateral offset, road heading, the circle's curvature."""
     psi_j = smp[j, 3]
     c, sn = np.cos(psi_j), np.sin(psi_j)
     dx, dy = x - smp[j, 1], y - smp[j, 2]
@@ -209,22 +272,22 @@ def _foot(smp: np.ndarray, j: np.ndarray, x: np.ndarray, y: np.ndarray,
     phi = np.arctan2(a, sg * (r - b))
     s_off = np.where(curved, phi * np.abs(r), a)
     e = np.where(curved, r - sg * np.hypot(a, r - b), b)
-    return s_off, e, psi_j + np.where(curved, sg * phi, 0.0)
+    return s_off, e, psi_j + np.where(curved, sg * phi, 0.0), np.where(curved, rho, 0.0)
 
 
 def _refine(smp: np.ndarray, ds: float, x: np.ndarray, y: np.ndarray,
             i: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """NumPy twin of the refinement in :func:`road_project`."""
+    """NumPy twin of the refinement in :func:`road_project` (+ the osculating circle's curvature)."""
     n = smp.shape[0]
     a = (x - smp[i, 1]) * np.cos(smp[i, 3]) + (y - smp[i, 2]) * np.sin(smp[i, 3])
     end = ((i == n - 1) & (a > 0.0)) | ((i == 0) & (a < 0.0))
     j = np.where(~end & (a < 0.0) & (i > 0), i - 1, i)
-    s_off, e, psi = _foot(smp, j, x, y, end)
+    s_off, e, psi, rho_osc = _foot(smp, j, x, y, end)
     s = smp[j, 0] + s_off
     k = np.minimum(j, max(n - 2, 0))
     w = np.clip((s - smp[k, 0]) / ds, 0.0, 1.0)
     rho = np.where(end, 0.0, smp[k, 4] + w * (smp[np.minimum(k + 1, n - 1), 4] - smp[k, 4]))
-    return s, e, psi, rho
+    return s, e, psi, rho, rho_osc
 
 
 # ---- compiled projection (used inside the simulation loop) ---------------------------------------
@@ -255,34 +318,11 @@ def _descend(samples: np.ndarray, x: float, y: float, i: int) -> int:
             return i
 
 
-@njit(cache=True)
-def road_project(samples: np.ndarray, ds: float, x: float, y: float,
-                 i_hint: int) -> tuple[int, float, float, float, float]:
-    """Project the point (x, y) onto the road centre line.
-
-    Parameters
-    ----------
-    samples : (n, 5) float64 ``[s, x, y, psi, rho]`` (``Road.samples``).
-    ds : sample spacing [m].
-    x, y : world position [m].
-    i_hint : sample index near the answer (the previous step's ``i``); any value is safe.
-
-    Returns
-    -------
-    i : nearest sample index (pass it back as the next hint).
-    s : path coordinate [m] (< 0 or > length beyond the ends, where the road extends straight).
-    e_left : signed lateral offset [m], > 0 left of the centre line.
-    psi_road : road heading at s [rad] (unwrapped like ``samples[:, 3]``).
-    rho : road curvature at s [1/m].
-
-    Notes
-    -----
-    A local descent from the hint costs a few samples per call. If it ends farther than
-    ~8 m from the road (a car off the road or a stale hint), a coarse global scan (every ~2 m) picks,
-    among the samples within ~3 m of the nearest distance, the one closest in index to the hint (so
-    on a road that overlaps itself, e.g. laps of a circle, the current lap is kept), and a descent
-    from there finds the nearest sample.
-    """
+@njit(cache=True, inline="always")
+def _project_frame(samples: np.ndarray, ds: float, x: float, y: float,
+                   i_hint: int) -> tuple[int, float, float, float, float, float, float, float]:
+    """:func:`road_project` plus (cos psi_road, sin psi_road), found without trigonometry, and the
+    curvature of the circle the foot was found on (0 on a straight): the exact metric of s there."""
     n = samples.shape[0]
     hint = min(max(i_hint, 0), n - 1)
     i = _descend(samples, x, y, hint)
@@ -307,12 +347,15 @@ def road_project(samples: np.ndarray, ds: float, x: float, y: float,
 
     # The foot lies in the interval starting at sample j; project on the circle osculating there
     # (its curvature is that interval's, also where the curvature steps at a segment joint).
-    a = (x - samples[i, 1]) * math.cos(samples[i, 3]) + (y - samples[i, 2]) * math.sin(samples[i, 3])
+    c = math.cos(samples[i, 3])
+    sn = math.sin(samples[i, 3])
+    a = (x - samples[i, 1]) * c + (y - samples[i, 2]) * sn
     end = (i == n - 1 and a > 0.0) or (i == 0 and a < 0.0)
     j = i - 1 if (not end and a < 0.0 and i > 0) else i
     psi_j = samples[j, 3]
-    c = math.cos(psi_j)
-    sn = math.sin(psi_j)
+    if j != i:
+        c = math.cos(psi_j)
+        sn = math.sin(psi_j)
     dx = x - samples[j, 1]
     dy = y - samples[j, 2]
     a = dx * c + dy * sn
@@ -323,12 +366,21 @@ def road_project(samples: np.ndarray, ds: float, x: float, y: float,
         sg = 1.0 if r > 0.0 else -1.0
         phi = math.atan2(a, sg * (r - b))
         s_off = phi * abs(r)
-        e = r - sg * math.hypot(a, r - b)
+        h = math.hypot(a, r - b)
+        e = r - sg * h
         psi = psi_j + sg * phi
+        # (cos, sin) of psi without trigonometry: cos(phi) = sg (r - b)/h, sin(phi) = a/h.
+        cp = sg * (r - b) / h if h > 0.0 else 1.0
+        sp = sg * (a / h) if h > 0.0 else 0.0
+        ct = c * cp - sn * sp
+        st = sn * cp + c * sp
     else:
         s_off = a
         e = b
         psi = psi_j
+        ct = c
+        st = sn
+        rho_j = 0.0
     s = samples[j, 0] + s_off
     if end:
         rho = 0.0
@@ -337,6 +389,38 @@ def road_project(samples: np.ndarray, ds: float, x: float, y: float,
         kp = min(k + 1, n - 1)
         w = min(max((s - samples[k, 0]) / ds, 0.0), 1.0)
         rho = samples[k, 4] + w * (samples[kp, 4] - samples[k, 4])
+    return i, s, e, psi, rho, ct, st, rho_j
+
+
+@njit(cache=True)
+def road_project(samples: np.ndarray, ds: float, x: float, y: float,
+                 i_hint: int) -> tuple[int, float, float, float, float]:
+    """Project the point (x, y) onto the road centre line.
+
+    Parameters
+    ----------
+    samples : (n, 8) float64 ``Road.samples`` (reads columns ``[s, x, y, psi, rho]``).
+    ds : sample spacing [m].
+    x, y : world position [m].
+    i_hint : sample index near the answer (the previous step's ``i``); any value is safe.
+
+    Returns
+    -------
+    i : nearest sample index (pass it back as the next hint).
+    s : path coordinate [m] (< 0 or > length beyond the ends, where the road extends straight).
+    e_left : signed lateral offset [m], > 0 left of the centre line.
+    psi_road : road heading at s [rad] (unwrapped like ``samples[:, 3]``).
+    rho : road curvature at s [1/m].
+
+    Notes
+    -----
+    A local descent from the hint costs a few samples per call. If it ends farther than
+    ~8 m from the road (a car off the road or a stale hint), a coarse global scan (every ~2 m) picks,
+    among the samples within ~3 m of the nearest distance, the one closest in index to the hint (so
+    on a road that overlaps itself, e.g. laps of a circle, the current lap is kept), and a descent
+    from there finds the nearest sample.
+    """
+    i, s, e, psi, rho, _, _, _ = _project_frame(samples, ds, x, y, i_hint)
     return i, s, e, psi, rho
 
 
@@ -361,11 +445,44 @@ def road_project_many(samples: np.ndarray, ds: float, xs: np.ndarray, ys: np.nda
     return out
 
 
+@njit(cache=True, inline="always")
+def road_surface(samples: np.ndarray, ds: float, x: float, y: float,
+                 i_hint: int) -> tuple[int, float, float, float, float]:
+    """Road surface height and unit upward normal under the world point (x, y).
+
+    Parameters
+    ----------
+    samples : (n, 8) float64 ``Road.samples``.
+    ds : sample spacing [m].
+    x, y : world position [m].
+    i_hint : sample index near the answer (the previous call's ``i`` for the same wheel).
+
+    Returns
+    -------
+    i : nearest sample index (pass it back as the next hint).
+    z : surface height z_c(s) + e tan(phi_b(s)) [m].
+    nx, ny, nz : unit upward surface normal in the world frame (module docstring).
+    On a flat road exactly (i, 0, 0, 0, 1).
+    """
+    i, s, e, _, _, c, sn, rho_osc = _project_frame(samples, ds, x, y, i_hint)
+    zc, g, b, db = profile_at(samples, ds, s)
+    tb = math.tan(b) if b != 0.0 else 0.0  # most of a road is not banked
+    z = zc + e * tb
+    # Derivative of z along t: d/ds at fixed e, over the metric factor 1 - rho e (rho of the circle
+    # the foot was found on, so that the normal is the exact gradient of the z returned).
+    a = (g + e * db * (1.0 + tb * tb)) / max(1.0 - rho_osc * e, _MIN_METRIC)
+    gx = a * c - tb * sn
+    gy = a * sn + tb * c
+    inv = 1.0 / math.sqrt(1.0 + gx * gx + gy * gy)
+    # 0.0 - g, not -g: a flat road's +-0.0 components become +0.0 (bit-identical flat results).
+    return i, z, (0.0 - gx) * inv, (0.0 - gy) * inv, inv
+
+
 # ---- construction --------------------------------------------------------------------------------
 
 def build_road(start: tuple[float, float, float], segments: list[Segment] | tuple[Segment, ...], *,
                ds_m: float = 0.25, lane_width_m: float = 3.5, lookahead_m: float = 0.5,
-               initial_curvature_1pm: float = 0.0) -> Road:
+               initial_curvature_1pm: float = 0.0, profile: RoadProfile | None = None) -> Road:
     """Build a sampled road from a start pose and a list of segments.
 
     Parameters
@@ -375,6 +492,7 @@ def build_road(start: tuple[float, float, float], segments: list[Segment] | tupl
         (an arc without a curvature keeps it; a straight sets it to 0).
     ds_m : sample spacing [m].
     initial_curvature_1pm : curvature at s = 0 (what a first arc/clothoid starts from).
+    profile : elevation and bank control points (``harness.road_profile``); None = flat.
 
     Returns
     -------
@@ -440,7 +558,10 @@ def build_road(start: tuple[float, float, float], segments: list[Segment] | tupl
     us = s_samples - seg_s0[seg_of_s]
     psi_s = seg_psi0[seg_of_s] + seg_k0[seg_of_s] * us + 0.5 * seg_dk[seg_of_s] * us * us
     rho_s = seg_k0[seg_of_s] + seg_dk[seg_of_s] * us
-    samples = np.column_stack([s_samples, xk[pick], yk[pick], psi_s, rho_s])
+    profile = RoadProfile() if profile is None else profile
+    z_s, grade_s, bank_s = profile.columns(s_samples)
+    samples = np.ascontiguousarray(np.column_stack([s_samples, xk[pick], yk[pick], psi_s, rho_s,
+                                                    z_s, grade_s, bank_s]))
     samples.setflags(write=False)
     return Road(samples=samples, ds_m=float(ds_m), lane_width_m=float(lane_width_m),
-                lookahead_m=float(lookahead_m), segments=tuple(segments))
+                lookahead_m=float(lookahead_m), segments=tuple(segments), profile=profile)

@@ -21,6 +21,7 @@ from harness.driver import DriverSpec, LeadSpec, parse_driver, parse_lead
 from harness.errors import ScenarioError
 from harness.friction_map import FrictionMap, friction_from_spec, parse_friction, parse_interval
 from harness.road import SEGMENT_KINDS, Road, Segment, build_road
+from harness.road_profile import RoadProfile
 from harness.strict_yaml import Fields, load_mapping, short_repr
 from harness.vehicle import available_vehicles
 
@@ -32,6 +33,12 @@ SENSOR_NAMES = ("imu", "wheel_speed", "steering", "gnss", "camera", "radar", "og
 SENSOR_PRESETS = ("ideal", "automotive", "consumer")
 #: Sharpest curvature a road segment may have (radius 2.5 m) [1/m].
 MAX_CURVATURE_1PM = 0.4
+#: Steepest grade of a road profile (|dz/ds|; road design keeps main-road grades far below it).
+MAX_GRADE_PERCENT = 30.0
+#: Largest bank angle of a road profile [deg] (the steepest banked oval tracks are near it).
+MAX_BANK_DEG = 30.0
+#: Largest elevation of a control point [m] (a bound on typos, not physics).
+MAX_ELEVATION_M = 10_000.0
 #: Every run gets a road at least this much longer than the distance it can cover [m].
 ROAD_MARGIN_M = 100.0
 
@@ -180,8 +187,51 @@ def _road(f: Fields, source: str) -> tuple[Road, float] | None:
             curv = g.number("curvature_end_1pm", lo=-MAX_CURVATURE_1PM, hi=MAX_CURVATURE_1PM)
         g.done()
         segs.append(Segment(kind, length, curv))
+    profile = _road_profile(r)
     r.done()
-    return build_road(start, segs, ds_m=ds, lane_width_m=lane, lookahead_m=look), look
+    return build_road(start, segs, ds_m=ds, lane_width_m=lane, lookahead_m=look, profile=profile), look
+
+
+def _profile_points(r: Fields, key: str, unit: str, bound: float) -> tuple[tuple[float, float], ...]:
+    """A ``[[s_m, value], ...]`` list: numbers, s >= 0 strictly increasing, |value| <= bound."""
+    raw = r.items(key)
+    if not raw:
+        raise r.fail(key, f"must hold at least one [s_m, {unit}] point (got [])")
+    out: list[tuple[float, float]] = []
+    for p in raw:
+        ok = (isinstance(p, list) and len(p) == 2
+              and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in p))
+        if not ok:
+            raise r.fail(key, f"each point must be [s_m, {unit}] numbers (got {short_repr(p)})")
+        s, v = float(p[0]), float(p[1])
+        if s < 0.0:
+            raise r.fail(key, f"path coordinates must be >= 0 (got s = {s:g})")
+        if out and s <= out[-1][0]:
+            raise r.fail(key, f"path coordinates must increase strictly (got s = {s:g} after {out[-1][0]:g})")
+        if abs(v) > bound:
+            raise r.fail(key, f"values must be within +-{bound:g} {unit} (got {v:g} at s = {s:g})")
+        out.append((s, v))
+    return tuple(out)
+
+
+def _road_profile(r: Fields) -> RoadProfile:
+    """The road's ``elevation_m`` or ``grade_percent`` and ``bank_deg`` profiles (docs/SCENARIOS.md)."""
+    if r.has("elevation_m") and r.has("grade_percent"):
+        raise r.fail("grade_percent", "give elevation_m or grade_percent, not both")
+    elevation = grade = bank = ()
+    if r.has("elevation_m"):
+        elevation = _profile_points(r, "elevation_m", "m", MAX_ELEVATION_M)
+    if r.has("grade_percent"):
+        grade = tuple((s, v / 100.0) for s, v in _profile_points(r, "grade_percent", "%", MAX_GRADE_PERCENT))
+    if r.has("bank_deg"):
+        bank = tuple((s, math.radians(v)) for s, v in _profile_points(r, "bank_deg", "deg", MAX_BANK_DEG))
+    profile = RoadProfile(elevation_m=elevation, grade=grade, bank_rad=bank)
+    if elevation:
+        steepest, at = profile.max_abs_grade()
+        if steepest > MAX_GRADE_PERCENT / 100.0 + 1e-12:
+            raise r.fail("elevation_m", f"the interpolated road is steeper than {MAX_GRADE_PERCENT:g} % "
+                                        f"({100.0 * steepest:.1f} % at s = {at:.1f} m): spread the points")
+    return profile
 
 
 def _outages(f: Fields, source: str) -> tuple[Outage, ...]:
