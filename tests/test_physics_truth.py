@@ -105,9 +105,8 @@ def test_banked_curve_at_its_neutral_speed_needs_no_lateral_tire_force(sedan) ->
         pytest.skip("the banked_curve scenario is not shipped yet")
     sc = load_scenario("banked_curve")
     road = sc.road
-    bank_of = getattr(road, "bank_at", None)
-    if bank_of is None:
-        pytest.skip("the road has no bank profile (bank_at) yet")
+    def bank_of(s_m: float) -> float:  # the road's bank column (samples[:, 7], ISO: left edge up > 0)
+        return float(np.interp(s_m, road.samples[:, 0], road.samples[:, 7]))
     # The steady arc: where the curvature is at its largest magnitude.
     rho = road.samples[:, 4]
     arc = np.flatnonzero(np.abs(rho) > 0.98 * np.max(np.abs(rho)))
