@@ -2,8 +2,8 @@
 
 :func:`generalized_run` is ``GeneralizedUIO._advance`` (latching, causal differentiators, integrated
 gyro and its re-centring, prediction while ``v_x`` / ``r`` are stale, re-seeding, the UIO step) written
-on arrays, so a compiled ``run()`` follows stepping ``step()`` one sample at a time; ``step()`` stays
-the plain-Python reference (tested in ``tests/test_observers_uio_compiled.py``).
+on arrays, so ``GeneralizedUIO.run_compiled()`` follows stepping ``step()`` one sample at a time;
+``step()`` (and ``run()``) stay the plain-Python reference (tested in ``tests/test_observers_uio_compiled.py``).
 
 The one deliberate difference is how the frozen affine step is integrated. ``step()`` uses
 :func:`observers.uio_generalized.exact_affine_step`: the order-12 Taylor exponential of the

@@ -1,6 +1,6 @@
-"""The compiled run() of the generalized UIO equals its plain-Python step() reference.
+"""The compiled loop of the generalized UIO equals its plain-Python step() reference.
 
-``GeneralizedUIO.run`` is one numba kernel (:mod:`observers.uio_generalized_loop`) that integrates
+``GeneralizedUIO.run_compiled`` is one numba kernel (:mod:`observers.uio_generalized_loop`) that integrates
 each frozen affine step with a Padé exponential acting on the state; ``step()`` keeps the Taylor
 exponential of the full augmented matrix. Both are exact to rounding, so the estimates must agree to
 1e-9 of each state's scale (they agree to ~1e-11): on a MuJoCo run with emulated automotive sensors,
@@ -82,12 +82,12 @@ def _mujoco_inputs() -> tuple[np.ndarray, np.ndarray]:
 def test_compiled_run_equals_stepping_on_mujoco(name: str) -> None:
     t, Y = _mujoco_inputs()
     obs = create(name, SEDAN)
-    got = obs.run(t, Y).x
+    got = obs.run_compiled(t, Y).x
     ref = create(name, SEDAN)
     want = _stepped(ref, t, Y)
     assert len(t) > 500 and np.all(np.isfinite(want)) and np.ptp(want, axis=0).min() > 0.0
     _assert_close(got, want)
-    # run() leaves the observer where stepping leaves it: unknown input and the next step agree
+    # the loop leaves the observer where stepping leaves it: unknown input and the next step agree
     np.testing.assert_allclose(obs.unknown_input(), ref.unknown_input(), rtol=RTOL,
                                atol=RTOL * np.abs(ref.unknown_input()).max())
     nxt, nref = obs.step(float(t[-1]) + 0.01, Y[-1]).x, ref.step(float(t[-1]) + 0.01, Y[-1]).x
@@ -99,7 +99,7 @@ def test_compiled_run_equals_stepping_on_mujoco(name: str) -> None:
 def test_compiled_run_equals_stepping_with_gaps_and_wraps(name: str, differentiator: str) -> None:
     t, Y = _synthetic()
     obs = create(name, SEDAN, differentiator=differentiator)
-    got = obs.run(t, Y).x
+    got = obs.run_compiled(t, Y).x
     ref = create(name, SEDAN, differentiator=differentiator)
     want = _stepped(ref, t, Y)
     # the heading pseudo-output wrapped: the gyro integrates past pi, the observer's psi_m stays in [-pi, pi]
@@ -114,7 +114,7 @@ def test_compiled_run_equals_stepping_with_gaps_and_wraps(name: str, differentia
 def test_compiled_run_from_initial_state_equals_stepping(name: str) -> None:
     t, Y = _synthetic()
     x0 = {"vy_mps": 0.4, "yaw_rate_radps": -0.1}
-    got = create(name, SEDAN).run(t, Y, x0).x
+    got = create(name, SEDAN).run_compiled(t, Y, x0).x
     want = _stepped(create(name, SEDAN), t, Y, x0)
     assert want[5, 0] == 0.4   # before the first sample the estimate is x0
     _assert_close(got, want)
