@@ -248,7 +248,7 @@ def _cmd_replay(a: argparse.Namespace) -> int:
 
     out = replay(Path(a.log), vehicle=a.vehicle, columns=a.columns, observers=a.observer, out=Path(a.out),
                  observer_timeout_s=a.observer_timeout, rate_hz=a.rate_hz,
-                 observer_options=_observer_options(a), table_format=a.table_format)
+                 observer_options=_observer_options(a), table_format=a.table_format, jobs=a.jobs)
     print(f"report: {out / 'index.html'}")
     return EXIT_OK
 
@@ -373,6 +373,8 @@ def build_parser() -> argparse.ArgumentParser:
     rl.add_argument("--out", default="reports/replay", help="output folder (default reports/replay)")
     rl.add_argument("--cache-dir", action=_CacheDirAction, help=_CACHE_HELP)
     rl.add_argument("--observer-timeout", type=_timeout, metavar="SECONDS", help=_OBSERVER_TIMEOUT_HELP)
+    rl.add_argument("--jobs", type=_positive_int, default=None,
+                    help="observers run at once, one process each (default: 2 on a machine with 2 cores or more)")
     _add_observer_options(rl)
     _add_format(rl)
     rl.set_defaults(func=_cmd_replay)

@@ -318,12 +318,14 @@ def _release(host: ObserverHost) -> None:
         _idle.append(host)
 
 
-def prestart() -> None:
-    """Start a host in the background if none is idle, so its imports overlap other work."""
+def prestart(count: int = 1) -> None:
+    """Start hosts in the background until ``count`` are idle, so their imports overlap other work
+    (``count`` > 1: one per thread that will run observers at the same time; started here, from
+    the calling thread, so a main thread arms their parent-death signal)."""
     with _lock:
-        if any(h.owner == os.getpid() and h.alive() for h in _idle):
-            return
-    _release(ObserverHost())
+        idle = sum(1 for h in _idle if h.owner == os.getpid() and h.alive())
+    for _ in range(max(0, count - idle)):
+        _release(ObserverHost())
 
 
 def shutdown() -> None:

@@ -30,9 +30,11 @@ measured from the start of the first run segment on that axis. Files keep the lo
 from __future__ import annotations
 
 import math
+import os
 import sys
 import time
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -52,6 +54,30 @@ from harness.table_io import TableWriter, WideEstimates, check_format, write_tab
 from harness.vehicle import VehicleParams, load_vehicle
 
 Progress = Callable[[str], None]
+
+#: The stages of a replay, in order, as ``replay(on_stage=...)`` announces them (benchmarks measure
+#: wall time and memory per stage with it).
+STAGES: tuple[str, ...] = ("prepare", "observers", "write", "score", "report")
+
+
+def default_jobs() -> int:
+    """Observer host processes run at once by default: 2 when the machine has 2 cores or more.
+
+    Each host holds numpy, numba, cvxpy and every observer (about 300 MB), so the default does not
+    grow with the core count; ``jobs`` asks for more.
+    """
+    return 2 if (os.cpu_count() or 1) >= 2 else 1
+
+
+def check_jobs(jobs: int | None) -> int:
+    """``jobs`` (None: :func:`default_jobs`) if it is an integer >= 1, else ``InputError`` on ``--jobs``."""
+    from harness.errors import InputError
+
+    if jobs is None:
+        return default_jobs()
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+        raise InputError(f"must be a whole number >= 1 (got {jobs!r})", field="--jobs")
+    return jobs
 
 
 @dataclass(frozen=True)
@@ -211,6 +237,8 @@ def replay(
     rate_hz: float | None = None,
     observer_options: dict[str, dict[str, Any]] | None = None,
     table_format: str = "csv",
+    jobs: int | None = None,
+    on_stage: Callable[[str], None] | None = None,
 ) -> Path:
     """Run observers on a recorded log and score them against its reference channels.
 
@@ -242,6 +270,11 @@ def replay(
         recorded in run.json.
     table_format : str
         ``"csv"`` (default) or ``"parquet"`` for every table written (``harness.table_io``).
+    jobs : int, optional
+        Observers run at the same time, each in its own host process (default :func:`default_jobs`).
+        The files are the same for any value: each observer's run does not depend on the others.
+    on_stage : callable, optional
+        Called with the name of each stage of :data:`STAGES` as it starts (for benchmarks).
 
     Returns
     -------
@@ -254,15 +287,22 @@ def replay(
     from observers.registry import available_observers, observer_class
 
     say = progress or (lambda _msg: None)
+    stage = on_stage or (lambda _name: None)
     t_wall = time.perf_counter()
     check_output_dir(out, inputs=[log, columns, vehicle])  # before any work: refusals and writability
     cmap = load_column_map(columns) if columns is not None else None
     veh: VehicleParams = load_vehicle(resolve_vehicle(vehicle, cmap), replay=True)
     check_format(table_format)
+    n_jobs = check_jobs(jobs)
     names = list(dict.fromkeys(observers)) if observers else available_observers()
     for name in names:
         observer_class(name)  # an unknown observer is refused before the log is read
     observer_options = check_observer_options(observer_options, names, veh)
+    if n_jobs > 1:
+        from harness import observer_host
+
+        observer_host.prestart(min(n_jobs, len(names)))  # their imports overlap reading the log
+    stage("prepare")
     rl = prepare_log(Path(log), cmap, vehicle=veh, rate_hz=rate_hz)
     for note in rl.notes:  # derived channels and fields, warnings of the consistency checks
         print(f"roadtruth replay: note: {note}", file=sys.stderr)
@@ -271,27 +311,50 @@ def replay(
 
     # Estimates are kept as float arrays per <observer>.<state> and segment (WideEstimates), not as
     # a long frame with copies per segment: that is what made a long log's replay peak near 2 GB.
+    stage("observers")
     wide = WideEstimates()
     per_segment: list[tuple[int, dict[str, Any]]] = []
     offsets = stitched_offsets(rl)
     bar = ProgressBar(len(rl.run_segments) * len(names), None, desc="roadtruth replay") if progress is None else None
+
+    def run_one(m: pd.DataFrame, name: str) -> tuple[pd.DataFrame, dict[str, Any], float]:
+        t_obs = time.perf_counter()
+        opts = {name: observer_options[name]} if name in observer_options else None
+        est, runs = run_observers(m, veh, [name], timeout_s=observer_timeout_s, options=opts)
+        return est, runs, time.perf_counter() - t_obs
+
+    # Each observer runs in a host process of its own thread's (harness/observer_host.py): n_jobs of
+    # them at once. Results are taken in submission order, so files and progress lines do not
+    # depend on which observer finishes first.
+    pool = ThreadPoolExecutor(max_workers=n_jobs, thread_name_prefix="replay-observer")
     try:
+        tasks: list[tuple[Segment, list[tuple[str, Future[Any]]]]] = []
         for s in rl.run_segments:
+            m = rl.measurements[s.index]
+            tasks.append((s, [(name, pool.submit(run_one, m, name)) for name in names]))
+        for s, futures in tasks:
             m = rl.measurements[s.index]
             say(f"segment {s.index}: {s.t_start_s:.2f}–{s.t_end_s:.2f} s, {len(m)} steps")
             seg_runs: dict[str, Any] = {}
             t_seg = m["t_s"].to_numpy(float)
-            for name in names:  # one at a time: a line per observer, and its long frame freed at once
-                t_obs = time.perf_counter()
-                opts = {name: observer_options[name]} if name in observer_options else None
-                est, runs = run_observers(m, veh, [name], timeout_s=observer_timeout_s, options=opts)
+            while futures:
+                name, fut = futures.pop(0)  # the future holds the long frame: let both go once stored
+                est, runs, seconds = fut.result()
+                del fut
                 wide.add(s.index, t_seg, est)
                 del est
                 seg_runs.update(runs)
                 if bar is not None:
                     bar.item(f"segment {s.index} ({s.t_start_s:.0f}–{s.t_end_s:.0f} s): {name}: "
-                             f"{runs[name].status}, {time.perf_counter() - t_obs:.1f} s")
+                             f"{runs[name].status}, {seconds:.1f} s")
             per_segment.append((s.index, seg_runs))
+    except BaseException:
+        # Ctrl-C (or a failure here): start no further observer; the ones running end within
+        # their time budget, and their hosts with this process.
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    else:
+        pool.shutdown(wait=True)
     finally:
         if bar is not None:
             bar.close()
@@ -309,21 +372,27 @@ def replay(
         part["t_s"] = part["t_s"] + offsets[s.index]
         scoring_parts.append(part)
     scoring_truth = pd.concat(scoring_parts, ignore_index=True)
-    # Scored one observer at a time (score() treats observers independently: the same rows as one call).
-    scored = [score(scoring_truth, wide.long(name, offsets), scenario=rl.name, runs={name: run},
-                    mass_kg=veh.mass_kg) for name, run in runs_all.items()]
-    metrics = pd.concat(scored, ignore_index=True) if scored else score(
-        scoring_truth, wide.long("", offsets), scenario=rl.name, runs={}, mass_kg=veh.mass_kg)
 
     out = Path(out)
     with atomic_output_dir(out, command="replay", inputs=[log, columns, vehicle]) as tmp:
+        stage("write")
         sub = tmp / rl.name
         sub.mkdir()
         write_table(truth, sub, "truth", table_format)
         with TableWriter(sub, "measurements", table_format) as meas_file:  # segment by segment, no concat copy
             for s in rl.run_segments:
                 meas_file.write(rl.measurements[s.index].assign(segment=s.index))
-        write_table(wide.frame(), sub, "estimates", table_format)  # wide: one row per time step
+        wide.write(sub, "estimates", table_format)  # wide: one row per time step, from the arrays
+        stage("score")
+        # Scored one observer at a time (score() treats observers independently: the same rows as
+        # one call); its arrays are written already and freed once it is scored.
+        scored = []
+        for name, run in runs_all.items():
+            scored.append(score(scoring_truth, wide.long(name, offsets), scenario=rl.name, runs={name: run},
+                                mass_kg=veh.mass_kg))
+            wide.drop(name)
+        metrics = pd.concat(scored, ignore_index=True) if scored else score(
+            scoring_truth, wide.long("", offsets), scenario=rl.name, runs={}, mass_kg=veh.mass_kg)
         write_table(segments_frame(rl.segments), sub, "segments", table_format)
         events = [{"t_s": s.t_start_s, "label": f"skipped: {s.reason.split(' (')[0]}"}
                   for s in rl.segments if s.status != RUN]
@@ -358,6 +427,7 @@ def replay(
             "wall_s": round(time.perf_counter() - t_wall, 3),
         }
         write_json(run_json, tmp / "run.json")
+        stage("report")
         build_report(tmp)
     say(f"report: {out.resolve() / 'index.html'}")
     return out.resolve()

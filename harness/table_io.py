@@ -39,8 +39,11 @@ import pandas as pd
 FORMATS: tuple[str, ...] = ("csv", "parquet")
 DEFAULT_FORMAT = "csv"
 SUFFIXES: dict[str, str] = {"csv": ".csv", "parquet": ".parquet"}
-#: Rows formatted at a time by the CSV writer (bounds the text held in memory to a few MB per column).
+#: Rows formatted at a time by the CSV writer (bounds the text held in memory to a few MB per column) ...
 CSV_BLOCK_ROWS = 20_000
+#: ... and at most this many cells per block: a wide estimates table of 150 columns holds 50 B or so
+#: of Python string per cell while a block is formatted (20,000 rows of it would be 150 MB).
+CSV_BLOCK_CELLS = 400_000
 #: Suffixes of the bound and covariance columns of a wide estimates table.
 BOUND_SUFFIXES: tuple[str, ...] = ("lo", "hi", "var")
 LONG_COLUMNS: tuple[str, ...] = ("t_s", "observer", "state", "value", "lo", "hi", "var")
@@ -94,8 +97,12 @@ def _cells(column: pd.Series, fmt: str) -> list[str] | None:
     kind = column.dtype.kind
     values = column.tolist()
     if kind == "f":
-        f = fmt.__mod__
-        return ["" if v != v else f(v) for v in values]  # v != v: NaN
+        # Format every value, then blank the NaN cells: one C-level map instead of a Python test per
+        # value (the formatting of ~10^7 floats is most of a long replay's CSV time).
+        cells = list(map(fmt.__mod__, values))
+        for i in np.flatnonzero(np.isnan(column.to_numpy())).tolist():
+            cells[i] = ""
+        return cells
     if kind in "iub":
         return [str(v) for v in values]
     if kind in "OUT":
@@ -109,6 +116,11 @@ def _cells(column: pd.Series, fmt: str) -> list[str] | None:
                 return None  # numbers or objects inside a text column: leave them to pandas
         return out
     return None
+
+
+def block_rows(n_columns: int) -> int:
+    """Rows per CSV block for a table of ``n_columns`` columns (:data:`CSV_BLOCK_ROWS`, :data:`CSV_BLOCK_CELLS`)."""
+    return max(1, min(CSV_BLOCK_ROWS, CSV_BLOCK_CELLS // max(n_columns, 1)))
 
 
 def _csv_text(frame: pd.DataFrame, fmt: str, header: bool) -> str | None:
@@ -135,9 +147,10 @@ def _csv_text(frame: pd.DataFrame, fmt: str, header: bool) -> str | None:
 def write_csv_table(frame: pd.DataFrame, path: Path) -> None:
     """``frame`` as CSV: the fixed float format (``%.10g``), NaN an empty cell, ``\\n`` line ends."""
     fmt = _float_format()
+    rows = block_rows(len(frame.columns))
     with open(path, "w", encoding="utf-8", newline="") as fh:
-        for start in range(0, max(len(frame), 1), CSV_BLOCK_ROWS):
-            block = frame.iloc[start:start + CSV_BLOCK_ROWS]
+        for start in range(0, max(len(frame), 1), rows):
+            block = frame.iloc[start:start + rows]
             text = _csv_text(block, fmt, header=start == 0)
             if text is None:
                 text = block.to_csv(index=False, float_format=fmt, na_rep="", lineterminator="\n",
@@ -208,8 +221,9 @@ class TableWriter:
             header = True
         else:
             header = False
-        for start in range(0, max(len(frame), 1), CSV_BLOCK_ROWS):
-            block = frame.iloc[start:start + CSV_BLOCK_ROWS]
+        rows = block_rows(len(frame.columns))
+        for start in range(0, max(len(frame), 1), rows):
+            block = frame.iloc[start:start + rows]
             text = _csv_text(block, fmt, header=header and start == 0)
             if text is None:
                 text = block.to_csv(index=False, float_format=fmt, na_rep="", lineterminator="\n",
@@ -310,38 +324,73 @@ def is_wide(frame: pd.DataFrame) -> bool:
     return "observer" not in frame.columns and "state" not in frame.columns
 
 
-def estimates_long(frame: pd.DataFrame, observers: Sequence[str] | None = None) -> pd.DataFrame:
-    """A wide estimates table (or an old long one, passed through) as the long frame.
+def _labels(labels: Sequence[str], lengths: Sequence[int]) -> pd.Categorical:
+    """A text column holding ``labels[i]`` ``lengths[i]`` times, as a categorical.
 
-    Rows where the value and its bounds are all missing are left out (an observer that did not run
-    on a stretch, e.g. a skipped replay segment). ``observers`` restricts the result to those.
+    A categorical stores one small integer per row; an object column of the same text becomes a
+    pyarrow string column in pandas 3, whose construction costs seconds on a long log's millions of
+    rows (and the report's filters compare strings row by row).
     """
-    if not is_wide(frame):
-        if observers is not None and "observer" in frame.columns:
-            frame = frame[frame["observer"].isin(list(observers))]
-        return frame
-    spec = estimate_columns(frame.columns)
-    prefixed = {c for cols in spec.values() for c in cols.values()}
-    shared = [c for c in frame.columns if c not in prefixed]
-    base = frame[shared]
-    parts = []
-    for (obs, state), cols in spec.items():
-        if observers is not None and obs not in observers:
-            continue
-        part = {c: base[c].to_numpy() for c in shared}
-        part["observer"] = np.full(len(frame), obs, dtype=object)
-        part["state"] = np.full(len(frame), state, dtype=object)
-        for kind in ("value", *BOUND_SUFFIXES):
-            part[kind] = frame[cols[kind]].to_numpy(float) if kind in cols else np.full(len(frame), np.nan)
-        df = pd.DataFrame(part)
-        keep = df[["value", *BOUND_SUFFIXES]].notna().any(axis=1)
-        parts.append(df[keep.to_numpy()])
+    cats = list(dict.fromkeys(labels))
+    code = {c: i for i, c in enumerate(cats)}
+    codes = np.repeat(np.array([code[c] for c in labels], dtype=np.int32), np.asarray(lengths, dtype=np.int64))
+    return pd.Categorical.from_codes(codes, categories=cats)
+
+
+def _long_frame(parts: list[tuple[str, str, dict[str, np.ndarray]]], shared: Sequence[str],
+                categorical: bool) -> pd.DataFrame:
+    """Long estimates from ``(observer, state, {column: array})`` parts, columns in ``LONG_COLUMNS``
+    order then ``shared`` extras; ``observer``/``state`` categorical or plain text."""
     extra = [c for c in shared if c != "t_s"]
     order = [*LONG_COLUMNS, *extra]
     if not parts:
         return pd.DataFrame({c: pd.Series(dtype=object if c in ("observer", "state") else float) for c in order})
-    out = pd.concat(parts, ignore_index=True)
-    return out[[c for c in order if c in out.columns]]
+    lengths = [len(cols["value"]) for _, _, cols in parts]
+    data: dict[str, Any] = {}
+    for c in order:
+        if c == "observer" or c == "state":
+            labels = [p[0] if c == "observer" else p[1] for p in parts]
+            data[c] = _labels(labels, lengths) if categorical else np.repeat(
+                np.array(labels, dtype=object), lengths)
+        elif c in parts[0][2]:
+            data[c] = np.concatenate([cols[c] for _, _, cols in parts])
+    return pd.DataFrame(data)
+
+
+def estimates_long(frame: pd.DataFrame, observers: Sequence[str] | None = None, *,
+                   states: Sequence[str] | None = None, categorical: bool = False) -> pd.DataFrame:
+    """A wide estimates table (or an old long one, passed through) as the long frame.
+
+    Rows where the value and its bounds are all missing are left out (an observer that did not run
+    on a stretch, e.g. a skipped replay segment). ``observers`` and ``states`` restrict the result to
+    those (the report asks for one state at a time: one figure's rows, never the whole long table);
+    ``categorical`` gives ``observer``/``state`` as categoricals (:func:`_labels`).
+    """
+    if not is_wide(frame):
+        if observers is not None and "observer" in frame.columns:
+            frame = frame[frame["observer"].isin(list(observers))]
+        if states is not None and "state" in frame.columns:
+            frame = frame[frame["state"].isin(list(states))]
+        return frame
+    spec = estimate_columns(frame.columns)
+    prefixed = {c for cols in spec.values() for c in cols.values()}
+    shared = [c for c in frame.columns if c not in prefixed]
+    base = {c: frame[c].to_numpy() for c in shared}
+    parts = []
+    for (obs, state), cols in spec.items():
+        if (observers is not None and obs not in observers) or (states is not None and state not in states):
+            continue
+        arrays = {kind: frame[cols[kind]].to_numpy(float) if kind in cols else np.full(len(frame), np.nan)
+                  for kind in ("value", *BOUND_SUFFIXES)}
+        keep = ~np.isnan(arrays["value"])  # a row with a value or a bound (±inf counts: divergence)
+        for kind in BOUND_SUFFIXES:
+            keep |= ~np.isnan(arrays[kind])
+        if keep.all():
+            part = {**base, **arrays}
+        else:
+            part = {c: a[keep] for c, a in {**base, **arrays}.items()}
+        parts.append((obs, state, part))
+    return _long_frame(parts, shared, categorical)
 
 
 class WideEstimates:
@@ -350,14 +399,20 @@ class WideEstimates:
     repeats time, observer and state on every value: about 4× the memory, and copies of it made a
     long log's replay peak near 2 GB).
 
-    ``add`` takes one segment's long estimates (any observers) on that segment's times; ``frame``
-    gives the wide table over all segments (NaN where an observer did not run on one), and
-    ``long`` one observer's long frame with per-segment time shifts (for scoring on a stitched axis).
+    ``add`` takes one segment's long estimates (any observers) on that segment's times; ``columns``
+    and ``write`` give the wide table over all segments (NaN where an observer did not run on one)
+    without a frame copy of it, ``frame`` the same as a DataFrame, and ``long`` one observer's long
+    frame with per-segment time shifts (for scoring on a stitched axis).
     """
 
     def __init__(self) -> None:
         self._times: dict[int, np.ndarray] = {}
         self._columns: dict[str, dict[int, np.ndarray]] = {}
+
+    def _add_column(self, name: str, segment: int, values: np.ndarray, optional: bool) -> None:
+        if optional and not np.isfinite(values).any():
+            return  # a bound or covariance column only where the observer gives one (estimates_wide)
+        self._columns.setdefault(name, {})[segment] = values
 
     def add(self, segment: int, t_s: np.ndarray, long: pd.DataFrame) -> None:
         t = np.asarray(t_s, dtype=float)
@@ -366,6 +421,21 @@ class WideEstimates:
             raise ValueError(f"segment {segment} given on two time bases")
         if long.empty:
             return
+        n = len(t)
+        if n and len(long) % n == 0:
+            # The frame of harness.estimate.run_observers: one block of n rows per (observer, state),
+            # each on the segment's times. Sliced directly; anything else goes through estimates_wide.
+            obs, state, tl = (long[c].to_numpy() for c in ("observer", "state", "t_s"))
+            blocks = [slice(k * n, (k + 1) * n) for k in range(len(long) // n)]
+            if all(np.array_equal(tl[b], t) and (obs[b] == obs[b.start]).all() and (state[b] == state[b.start]).all()
+                   for b in blocks):
+                for b in blocks:
+                    name = f"{obs[b.start]}.{state[b.start]}"
+                    self._add_column(name, segment, long["value"].to_numpy(float)[b].copy(), False)
+                    for s in BOUND_SUFFIXES:
+                        if s in long.columns:
+                            self._add_column(f"{name}_{s}", segment, long[s].to_numpy(float)[b].copy(), True)
+                return
         wide = estimates_wide(long)
         if len(wide) != len(t) or not np.array_equal(wide["t_s"].to_numpy(float), t):
             wide = pd.DataFrame({"t_s": t}).merge(wide, on="t_s", how="left")
@@ -377,20 +447,34 @@ class WideEstimates:
     def observers(self) -> list[str]:
         return list(dict.fromkeys(c.split(".", 1)[0] for c in self._columns))
 
+    def columns(self, segment_column: str | None = "segment") -> dict[str, np.ndarray]:
+        """``t_s`` (+ ``segment``) and every estimate column as arrays, segments in the order they were
+        added (one segment: the stored arrays themselves, no copy)."""
+        segs = list(self._times)
+
+        def joined(parts: list[np.ndarray]) -> np.ndarray:
+            return parts[0] if len(parts) == 1 else np.concatenate(parts) if parts else np.empty(0)
+
+        data: dict[str, np.ndarray] = {"t_s": joined([self._times[s] for s in segs])}
+        if segment_column is not None:
+            segment = [np.full(len(self._times[s]), s, dtype=np.int64) for s in segs]
+            data[segment_column] = joined(segment) if segs else np.empty(0, dtype=np.int64)
+        for col, per in self._columns.items():
+            data[col] = joined([per[s] if s in per else np.full(len(self._times[s]), np.nan) for s in segs])
+        return data
+
     def frame(self, segment_column: str | None = "segment") -> pd.DataFrame:
         """``t_s`` (+ ``segment``) and every estimate column, segments in the order they were added."""
-        segs = list(self._times)
-        data: dict[str, np.ndarray] = {"t_s": np.concatenate([self._times[s] for s in segs]) if segs
-                                       else np.empty(0)}
-        if segment_column is not None:
-            data[segment_column] = np.concatenate([np.full(len(self._times[s]), s, dtype=np.int64) for s in segs]) \
-                if segs else np.empty(0, dtype=np.int64)
-        for col, per in self._columns.items():
-            data[col] = np.concatenate([per.get(s, np.full(len(self._times[s]), np.nan)) for s in segs])
-        return pd.DataFrame(data)
+        return pd.DataFrame(self.columns(segment_column))
+
+    def write(self, folder: Path, name: str, fmt: str = DEFAULT_FORMAT, segment_column: str | None = "segment") -> Path:
+        """The wide table as ``folder/name.<csv|parquet>``: the bytes :func:`write_table` writes for
+        :meth:`frame`, without a frame copy of all columns (CSV in row blocks, Parquet from the arrays)."""
+        return write_columns(self.columns(segment_column), folder, name, fmt)
 
     def long(self, observer: str, shift_s: dict[int, float] | None = None) -> pd.DataFrame:
-        """One observer's long estimates over its segments, ``t_s`` shifted by ``shift_s[segment]``."""
+        """One observer's long estimates over its segments, ``t_s`` shifted by ``shift_s[segment]``
+        (``observer``/``state`` categorical, see :func:`_labels`)."""
         shift_s = shift_s or {}
         spec = {k: v for k, v in estimate_columns(self._columns).items() if k[0] == observer}
         parts = []
@@ -399,15 +483,35 @@ class WideEstimates:
                 if seg not in self._columns[cols["value"]]:
                     continue
                 n = len(self._times[seg])
-                part = {"t_s": self._times[seg] + shift_s.get(seg, 0.0),
-                        "observer": np.full(n, obs, dtype=object), "state": np.full(n, state, dtype=object)}
+                part = {"t_s": self._times[seg] + shift_s.get(seg, 0.0)}
                 for kind in ("value", *BOUND_SUFFIXES):
                     part[kind] = self._columns[cols[kind]][seg] if kind in cols else np.full(n, np.nan)
-                parts.append(pd.DataFrame(part))
-        if not parts:
-            return pd.DataFrame({c: pd.Series(dtype=object if c in ("observer", "state") else float)
-                                 for c in LONG_COLUMNS})
-        return pd.concat(parts, ignore_index=True)[list(LONG_COLUMNS)]
+                parts.append((obs, state, part))
+        return _long_frame(parts, ("t_s",), categorical=True)
+
+    def drop(self, observer: str) -> None:
+        """Forget ``observer``'s arrays (after they are written and scored)."""
+        for col in [c for c in self._columns if c.split(".", 1)[0] == observer]:
+            del self._columns[col]
+
+
+def write_columns(columns: dict[str, np.ndarray], folder: Path, name: str, fmt: str = DEFAULT_FORMAT) -> Path:
+    """Equal-length arrays as the table ``folder/name.<csv|parquet>``, the bytes :func:`write_table`
+    writes for ``pandas.DataFrame(columns)``, without building that frame: CSV in row blocks of small
+    frames, Parquet from the arrays (pyarrow wraps float64 arrays without a copy)."""
+    path = table_file(folder, name, fmt)
+    if fmt == "parquet":
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        pq.write_table(pa.table({c: pa.array(a) for c, a in columns.items()}), path, **_PARQUET_OPTIONS)
+        return path
+    n = len(next(iter(columns.values()))) if columns else 0
+    rows = block_rows(len(columns))
+    with TableWriter(folder, name, fmt) as out:
+        for start in range(0, max(n, 1), rows):
+            out.write(pd.DataFrame({c: a[start:start + rows] for c, a in columns.items()}))
+    return path
 
 
 def read_estimates(folder: Path) -> pd.DataFrame:

@@ -227,6 +227,12 @@ class ScenarioFiles:
     @cached_property
     def estimates(self) -> pd.DataFrame:
         """Long ``t_s, observer, state, value, lo, hi, var`` whether the file is wide or long."""
+        table = self._estimates_table
+        return table if table.empty or not is_wide(table) else estimates_long(table)
+
+    @cached_property
+    def _estimates_table(self) -> pd.DataFrame:
+        """The estimates table as written: wide, or long for a run written before the wide form."""
         found = table_path(self.folder, "estimates")
         path = self._path(found.name) if found is not None else None  # never read outside the folder
         if path is None:
@@ -241,7 +247,18 @@ class ScenarioFiles:
         if head is not None and not is_wide(head):  # a run written before the wide form
             return self._table("estimates", required=("t_s", "observer", "state", "value"),
                                text=("observer", "state"))
-        return estimates_long(self._table("estimates", required=("t_s",)))
+        return self._table("estimates", required=("t_s",))
+
+    def estimates_of(self, state: str) -> pd.DataFrame:
+        """The long rows of one state (``observer``/``state`` categorical): what one figure plots.
+
+        A wide table is turned long one state at a time, so a long log's report never holds every
+        observer's every state in long form (millions of rows).
+        """
+        table = self._estimates_table
+        if table.empty:
+            return table
+        return estimates_long(table, states=[state], categorical=True)
 
     @cached_property
     def events(self) -> list[dict[str, Any]]:

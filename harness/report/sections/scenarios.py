@@ -63,7 +63,7 @@ class ScenariosSection(Section):
             files = run.scenario(name)
             entry = run.scenario_entry(name)
             info = files.info
-            truth, est, events = files.truth, files.estimates, files.events
+            truth, events = files.truth, files.events
             figures = []
             if not truth.empty and {"x_m", "y_m"} <= set(truth.columns):
                 figures.append({"id": f"fig-{slug(name)}-path", "spec": trajectory_figure(truth, info, events),
@@ -79,8 +79,9 @@ class ScenariosSection(Section):
             reason = next((str(e.get("label", "")) for e in reversed(tevs)
                            if until is not None and float(e["t_s"]) <= until + 1e-6), "")
             for state in states:
+                est = files.estimates_of(state)  # one state's rows at a time, never the whole long table
                 if truth.empty and est.empty:
-                    break
+                    continue
                 figures.append({"id": f"fig-{slug(name)}-{slug(state)}",
                                 "spec": state_figure(state, truth, est, page.styles, events, until, reason),
                                 "wide": False})
