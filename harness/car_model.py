@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from harness.errors import VehicleError
+from harness.road_mesh import road_surface_mesh
 from harness.vehicle import G, VehicleParams
 
 CORNERS: tuple[str, ...] = ("fl", "fr", "rl", "rr")
@@ -250,6 +251,14 @@ def _scenario_visuals(scenario: Any) -> tuple[str, str, tuple[float, float, floa
     starts = np.arange(0.0, road.length_m - DASH_LENGTH_M, DASH_PERIOD_M)
     if len(starts) * 2 > MAX_DASHES:
         starts = starts[:: int(math.ceil(len(starts) * 2 / MAX_DASHES))]
+    flat = road.is_flat
+    if not flat:
+        # A visual strip of the 3D road surface (the tires read the surface from the road itself).
+        verts, faces = road_surface_mesh(road, road.lane_width_m + 1.0)
+        assets.append(f'<mesh name="road_surface" vertex="{" ".join(_f(v) for v in verts.ravel())}" '
+                      f'face="{" ".join(str(int(i)) for i in faces.ravel())}" inertia="shell"/>')
+        geoms.append('<geom name="road_surface" type="mesh" mesh="road_surface" contype="0" conaffinity="0" '
+                     'rgba="0.30 0.31 0.32 1" group="2"/>')
     for s0 in starts:
         mid = s0 + DASH_LENGTH_M / 2.0
         if any(a <= mid <= b for a, b in gaps):
@@ -257,8 +266,11 @@ def _scenario_visuals(scenario: Any) -> tuple[str, str, tuple[float, float, floa
         x, y, psi = road.pose_at(mid)
         for side in (1.0, -1.0):
             px, py = x - side * half * math.sin(psi), y + side * half * math.cos(psi)
+            pz, euler = 0.006, f"0 0 {_f(psi)}"
+            if not flat:
+                pz = float(road.surface(px, py, s_hint_m=mid)["z_m"][0]) + 0.012
             geoms.append(f'<geom type="box" size="{_f(DASH_LENGTH_M / 2)} {_f(MARKING_WIDTH_M / 2)} 0.002" '
-                         f'pos="{_f(px)} {_f(py)} 0.006" euler="0 0 {_f(psi)}" contype="0" conaffinity="0" '
+                         f'pos="{_f(px)} {_f(py)} {_f(pz)}" euler="{euler}" contype="0" conaffinity="0" '
                          f'material="marking" group="2"/>')
     for j, p in enumerate(scenario.friction.patches):
         mesh = _patch_mesh(p.vertices, extent)
@@ -300,6 +312,11 @@ def build_mjcf(vehicle: VehicleParams, scenario: Any = None, *, timestep_s: floa
     assets, visuals, extent = ("", "", (-500.0, 2500.0, -1000.0, 1000.0))
     if scenario is not None:
         assets, visuals, extent = _scenario_visuals(scenario)
+    floor_z = 0.0
+    if scenario is not None and not scenario.road.is_flat:
+        # The floor (the body's collision plane, and the ground of the renders) under the lowest road
+        # point; the 3D road itself is the tires' surface and a visual mesh.
+        floor_z = min(0.0, float(scenario.road.samples[:, 5].min()) - 1.5)
     cx, cy = (extent[0] + extent[1]) / 2.0, (extent[2] + extent[3]) / 2.0
     hx, hy = (extent[1] - extent[0]) / 2.0, (extent[3] - extent[2]) / 2.0
     corners = "".join(_corner_xml(vehicle, i, g) for i in range(4))
@@ -328,7 +345,7 @@ def build_mjcf(vehicle: VehicleParams, scenario: Any = None, *, timestep_s: floa
   </asset>
   <worldbody>
     <light name="sun" directional="true" pos="0 0 50" dir="-0.3 -0.2 -1" diffuse="0.8 0.8 0.8"/>
-    <geom name="floor" type="plane" pos="{_f(cx)} {_f(cy)} 0" size="{_f(hx)} {_f(hy)} 0.1" material="ground"
+    <geom name="floor" type="plane" pos="{_f(cx)} {_f(cy)} {_f(floor_z)}" size="{_f(hx)} {_f(hy)} 0.1" material="ground"
           priority="1" contype="1" conaffinity="2" friction="1 0.005 0.0001"/>
     {visuals}
     <body name="chassis" pos="0 0 {_f(vehicle.h_cg_m)}">

@@ -49,6 +49,9 @@ from harness.friction_map import SURFACES, mu_at
 from harness.road import road_project, road_surface
 from harness.signals import WHEELS
 from harness.tire import combined_with_camber, jit, radial_load_kernel, shape_array
+from harness.tire_fiala import fiala_forces
+from harness.tire_mf61 import mf61_forces
+from harness.tire_models import TIRE_MODEL_CODES, wheel_coefficients
 from harness.truth import RAW_COLUMNS, RAW_INDEX, Truth, build_frame
 from harness.truth_events import detect_events
 from harness.vehicle import G, VehicleParams, load_vehicle
@@ -102,8 +105,6 @@ N_RAW = len(RAW_COLUMNS)
 (I_STEER_MODE, I_SPEED_MODE, I_CHASSIS, I_HAS_LEAD, I_ACC, I_WHEEL, I_HEAD, I_SPIN, I_STEERQ, I_STEERA,
  I_TORQUE, I_SUSPQ, I_TIRE_MODEL, I_FLAT) = (0, 1, 2, 3, 4, 5, 9, 13, 17, 19, 21, 25, 29, 30)
 N_IP = 31
-#: Tire models of the loop (``ip[I_TIRE_MODEL]``).
-TIRE_MODELS = {"magic_formula": 0}
 # Loop state (st): tire deflection states v (4, lateral) and u (4, longitudinal) [m], speed integrator,
 # previous steer, unwrapped yaw, road hint, last x, y, vx, vy (world) for the jump check, road hints
 # of the four wheels.
@@ -113,7 +114,8 @@ S_ALPHA, S_KAPPA, S_INT, S_DELTA, S_PSI, S_HINT, S_LASTX, S_LASTY, S_LASTVX, S_L
 
 @jit
 def _run(step1: Any, step2: Any, m_ptr: int, d_ptr: int, k0: int, k1: int, par: np.ndarray, ip: np.ndarray,
-         st: np.ndarray, shape: np.ndarray, fz0: np.ndarray, wheel: np.ndarray, drive_split: np.ndarray,
+         st: np.ndarray, shape: np.ndarray, fz0: np.ndarray, wheel: np.ndarray, tcoef: np.ndarray,
+         drive_split: np.ndarray,
          brake_split: np.ndarray,
          steer_open: np.ndarray, v_target: np.ndarray, dv_target: np.ndarray, lead: np.ndarray,
          samples: np.ndarray, verts: np.ndarray, meta: np.ndarray,
@@ -277,6 +279,7 @@ def _run(step1: Any, step2: Any, m_ptr: int, d_ptr: int, k0: int, k1: int, par: 
             re = R - max(defl, 0.0) / 3.0
             omega = qvel[ip[I_SPIN + i]]
             vsx = vxt - omega * re
+            w_low = 0.0
             if sig > 0.0:
                 # Transient slip: tire deflections u, v driven by the slip velocities, relaxing at
                 # |v_x|/sigma (exact over the step), with damping below V_LOW (a damped spring at rest).
@@ -301,8 +304,23 @@ def _run(step1: Any, step2: Any, m_ptr: int, d_ptr: int, k0: int, k1: int, par: 
                 alpha = -math.atan(vyt / vxa)
             mu = mu_at(par[P_MU0], verts, meta, px, py, t)
             # The tire's grip multiplies the road's mu in the peak only (logged mu stays the road's).
-            fx, fy, mz = combined_with_camber(alpha, kappa, gamma, fz, mu * par[P_GRIP], shape[i], fz0[i],
-                                              par[P_LS], wheel[i, 4], wheel[i, 5])
+            mu_t = mu * par[P_GRIP]  # 1 for a tire file: the file's friction is the tire's
+            if ip[I_TIRE_MODEL] == 1:
+                # The slips already carry the direction (α > 0 gives F_y > 0 rolling either way), so
+                # the file is evaluated as rolling forward.
+                fx, fy, mz = mf61_forces(tcoef[i], fz, kappa, alpha, gamma, abs(vxt), mu_t, mu_t)
+                if sig > 0.0 and w_low > 0.0:
+                    # The file's zero-slip forces (ply steer, conicity, rolling offsets) are rolling
+                    # effects: they fade out toward standstill, where they would push a parked car.
+                    f0x, f0y, m0z = mf61_forces(tcoef[i], fz, 0.0, 0.0, gamma, abs(vxt), mu_t, mu_t)
+                    fx -= w_low * f0x
+                    fy -= w_low * f0y
+                    mz -= w_low * m0z
+            elif ip[I_TIRE_MODEL] == 2:
+                fx, fy, mz = fiala_forces(tcoef[i], fz, kappa, alpha, gamma, mu_t)
+            else:
+                fx, fy, mz = combined_with_camber(alpha, kappa, gamma, fz, mu_t, shape[i], fz0[i], par[P_LS],
+                                                  wheel[i, 4], wheel[i, 5])
             if not (math.isfinite(fx) and math.isfinite(fy) and math.isfinite(fz) and math.isfinite(mz)):
                 return k, 6  # MuJoCo would silently reset the state on a NaN force
             Fx = fx * exx + fy * eyx + fz * nx
@@ -544,7 +562,8 @@ def simulate(scenario: Any, vehicle: VehicleParams | str | None = None, seed: in
     par[P_DMAX] = v.steering.max_road_wheel_angle_rad
     par[P_DRATE] = MAX_HANDWHEEL_RATE_RADPS / v.steering.ratio
     par[P_R], par[P_KT], par[P_CT] = v.wheel_radius_m, v.tires.radial_stiffness_Npm, v.tires.radial_damping_Nspm
-    par[P_SIGMA], par[P_LS], par[P_GRIP] = v.tires.relaxation_length_m, v.tires.load_sensitivity, v.tires.grip
+    par[P_SIGMA], par[P_LS] = v.tires.relaxation_length_m, v.tires.load_sensitivity
+    par[P_GRIP] = 1.0 if v.tires.model == "mf61" else v.tires.grip
     par[P_MASS], par[P_TDRIVE], par[P_TBRAKE] = v.mass_kg, v.drivetrain.max_drive_torque_Nm, v.drivetrain.max_brake_torque_Nm
     par[P_MU0], par[P_DS], par[P_LOOK] = scenario.friction.mu_default, scenario.road.ds_m, scenario.lookahead_m
     par[P_PREVIEW], par[P_GAIN], par[P_OFFSET] = drv.steer.preview_s, drv.steer.gain, drv.steer.lane_offset_m
@@ -570,7 +589,7 @@ def simulate(scenario: Any, vehicle: VehicleParams | str | None = None, seed: in
         ip[I_SPIN + i] = m.jnt_dofadr[m.joint(f"spin_{c}").id]
         ip[I_TORQUE + i] = m.actuator(f"torque_{c}").id
         ip[I_SUSPQ + i] = m.jnt_qposadr[m.joint(f"susp_{c}").id]
-    ip[I_TIRE_MODEL] = TIRE_MODELS["magic_formula"]
+    ip[I_TIRE_MODEL] = TIRE_MODEL_CODES[v.tires.model]
     ip[I_FLAT] = 1 if scenario.road.is_flat else 0
     for i, c in enumerate(CORNERS[:2]):
         ip[I_STEERQ + i] = m.jnt_qposadr[m.joint(f"steer_{c}").id]
@@ -584,7 +603,7 @@ def simulate(scenario: Any, vehicle: VehicleParams | str | None = None, seed: in
     log = np.full((n, N_RAW), np.nan)
     qlog = np.zeros((n, m.nq))
     args = (0, n, par, ip, st, shape_array(v.tires.front, v.tires.rear), np.ascontiguousarray(g.fz_static),
-            _wheel_table(v, dt_s), drive_split, brake_split, steer_open, v_target, dv_target, lead,
+            _wheel_table(v, dt_s), wheel_coefficients(v.tires), drive_split, brake_split, steer_open, v_target, dv_target, lead,
             np.ascontiguousarray(scenario.road.samples), verts, meta,
             d.qpos, d.qvel, d.qacc, d.xpos, d.xmat, d.xipos, d.cvel, d.subtree_com, d.xfrc_applied, d.ctrl,
             d.sensordata, m.dof_frictionloss, log, qlog)

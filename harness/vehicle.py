@@ -34,6 +34,7 @@ from harness.strict_yaml import Fields, load_mapping, short_repr
 
 G = 9.81  # m/s^2
 DRIVE_LAYOUTS = ("rwd", "fwd", "awd")
+TIRE_MODELS = ("magic_formula", "mf61", "fiala")
 VEHICLE_KINDS = ("full", "replay")
 _T = TypeVar("_T")
 
@@ -68,6 +69,10 @@ class Tires:
     load_sensitivity: float  # peak mu falls by this fraction per 100 % load above static
     grip: float = 1.0  # peak force / (road mu * Fz): 1.0 road tires; racing tires reach ~1.3 on dry asphalt
     rolling_resistance: float = 0.0  # rolling-resistance coefficient f_r (torque f_r Fz R_e against the spin)
+    model: str = "magic_formula"  # truth tire model: magic_formula | mf61 | fiala (docs/PHYSICS.md)
+    file: str = ""  # mf61: path of the MF 6.1/6.2 tire property file (.tir)
+    fiala_front: tuple[float, ...] = ()  # fiala: per-wheel (C_alpha [N/rad], C_kappa [N], a [m], C_gamma [N/rad])
+    fiala_rear: tuple[float, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -265,6 +270,21 @@ def _axle_tire(f: _AllFields, fz_axle: float) -> AxleTire:
     return t
 
 
+def _grip(t: _AllFields, model: str, tire_file: str, fz_front_axle_N: float) -> float:
+    """The tire's peak force per unit of road mu F_z. A tire file carries its own friction (PDY1, LMUY):
+    then grip is the file's peak at the front static load, for the observers' model only."""
+    if model != "mf61":
+        return t.number("grip", 1.0, lo=0.3, hi=2.0)
+    if t.has("grip"):
+        t.raw("grip")
+        t._record(f"{t._name('grip')}: a tire file sets its own friction (PDY1, LMUY); grip is read from it")
+    if not tire_file:
+        return math.nan
+    from harness.tire_models import file_grip
+
+    return file_grip(tire_file, fz_front_axle_N / 2.0)
+
+
 def parse_vehicle(data: dict[str, Any], source: str) -> VehicleParams:
     """Validate a vehicle mapping (as read from YAML) and build ``VehicleParams``.
 
@@ -305,15 +325,28 @@ def parse_vehicle(data: dict[str, Any], source: str) -> VehicleParams:
     )
     s.done()
     t = f.sub("tires")
+    model = t.string("model", "magic_formula", choices=TIRE_MODELS)
+    fz_f, fz_r = mass * G * lr / L, mass * G * lf / L
+    if model == "magic_formula":
+        front, rear = _axle_tire(t.sub("front"), fz_f), _axle_tire(t.sub("rear"), fz_r)
+        tire_file, fiala = "", ((), ())
+    else:
+        from harness.tire_models import fitted_axle_tires
+
+        tire_file, fiala, (front, rear) = fitted_axle_tires(model, t, source, fz_f, fz_r)
     tires = Tires(
-        front=_axle_tire(t.sub("front"), mass * G * lr / L),
-        rear=_axle_tire(t.sub("rear"), mass * G * lf / L),
+        front=front,
+        rear=rear,
         radial_stiffness_Npm=t.number("radial_stiffness_Npm", lo=1e4, hi=5e6),
         radial_damping_Nspm=t.number("radial_damping_Nspm", 300.0, lo=0.0, hi=1e5),
         relaxation_length_m=t.number("relaxation_length_m", 0.3, lo=0.0, hi=3.0),
         load_sensitivity=t.number("load_sensitivity", 0.0, lo=0.0, hi=0.5),
-        grip=t.number("grip", 1.0, lo=0.3, hi=2.0),
+        grip=_grip(t, model, tire_file, fz_f),
         rolling_resistance=t.number("rolling_resistance", 0.0, lo=0.0, hi=0.1),
+        model=model,
+        file=tire_file,
+        fiala_front=fiala[0],
+        fiala_rear=fiala[1],
     )
     t.done()
     a = f.sub("aero", {})
