@@ -53,7 +53,8 @@ from harness.tire_fiala import fiala_forces
 from harness.tire_mf61 import mf61_forces
 from harness.tire_models import TIRE_MODEL_CODES, wheel_coefficients
 from harness.truth import RAW_COLUMNS, RAW_INDEX, Truth, build_frame
-from harness.truth_events import detect_events
+from harness.tire_file import read_tire_file
+from harness.truth_events import detect_events, detect_tire_range
 from harness.vehicle import G, VehicleParams, load_vehicle
 
 #: Without a relaxation length (no transient slip) the slips are kinematic and need speed [m/s].
@@ -629,6 +630,12 @@ def simulate(scenario: Any, vehicle: VehicleParams | str | None = None, seed: in
     happened = detect_events(frame, fz_static_N=g.fz_static, road=scenario.road if drv.closed_loop_steer else None,
                              half_track_m=0.5 * v.track_f_m,
                              divergence=None if code == 0 else (status_t, DIVERGENCE_CAUSES[code]))
+    if v.tires.model == "mf61":
+        tf = read_tire_file(v.tires.file)
+        # The file's ranges are in its ISO signs: slip angle and inclination flip.
+        happened = tuple(sorted([*happened, *detect_tire_range(frame, {
+            "alpha_rad": (-tf.alpmax_rad, -tf.alpmin_rad), "kappa": (tf.kpumin, tf.kpumax),
+            "gamma_rad": (-tf.cammax_rad, -tf.cammin_rad), "fz_N": (tf.fzmin_N, tf.fzmax_N)})], key=lambda e: e.t_s))
     events = _events(scenario, log[:k_end, C_MU:C_MU + 4], t[:k_end], status_t, status)
     # The roll-over is already there as the simulator's divergence event.
     events = tuple(sorted([*events, *((e.t_s, e.label) for e in happened if e.kind != "rolled over")],

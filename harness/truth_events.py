@@ -16,6 +16,10 @@ thresholds below can change without touching the simulation. Each event is a :cl
     ``WHEEL_LIFT_MIN_DURATION_S`` (one event per wheel and lift).
 ``rolled over``
     The simulator's roll guard tripped (roll past 80 degrees; the frame ends there).
+``tire beyond its data``
+    A wheel's slip angle, slip ratio, inclination or load leaves the range its tire property file
+    declares (ALPMIN/ALPMAX, KPUMIN/KPUMAX, CAMMIN/CAMMAX, FZMIN/FZMAX): the forces there are the
+    formula's extrapolation, not the tire's measured data (``detect_tire_range``).
 ``stopped``
     The speed falls below ``STOPPED_SPEED_MPS`` after having been above ``MOVED_SPEED_MPS`` (each stop
     of a stop-and-go drive). At rest sideslip is undefined (NaN in the truth), so those samples are
@@ -66,7 +70,8 @@ MOVED_SPEED_MPS = 1.0
 #: Scored time ends this long before the first event of ENDS_SCORING [s] (see module docstring).
 SCORING_MARGIN_S = 0.0
 
-KINDS: tuple[str, ...] = ("spun out", "left the road", "wheel lift", "rolled over", "stopped")
+KINDS: tuple[str, ...] = ("spun out", "left the road", "wheel lift", "rolled over", "stopped",
+                          "tire beyond its data")
 ENDS_SCORING: frozenset[str] = frozenset({"spun out", "rolled over"})
 
 
@@ -189,6 +194,34 @@ def detect_events(frame: pd.DataFrame, *, fz_static_N: Sequence[float] | None = 
     if divergence is not None and divergence[1] == "rolled over":
         events.append(TruthEvent(float(divergence[0]), "rolled over"))
     return tuple(sorted(events, key=lambda e: (e.t_s, KINDS.index(e.kind))))
+
+
+def detect_tire_range(frame: pd.DataFrame, ranges: dict[str, tuple[float, float]]) -> list[TruthEvent]:
+    """First time each wheel leaves the range its tire file was fitted over (one event per wheel).
+
+    ``ranges``: ``alpha_rad``, ``kappa``, ``gamma_rad`` and ``fz_N`` -> (lo, hi) in roadtruth's signs.
+    While rolling only (|v_x| >= 1 m/s): the slips of a tire at rest are its deflection, not data.
+    """
+    out: list[TruthEvent] = []
+    t = frame["t_s"].to_numpy()
+    rolling = np.abs(frame["vx_mps"].to_numpy()) >= MOVED_SPEED_MPS
+    for w in WHEELS:
+        bad = np.zeros(t.size, dtype=bool)
+        why = ""
+        for quantity, (lo, hi) in ranges.items():
+            col = f"{quantity.split('_')[0]}_{w}" + (f"_{quantity.split('_', 1)[1]}" if "_" in quantity else "")
+            if col not in frame.columns:
+                continue
+            x = frame[col].to_numpy()
+            out_k = rolling & ((x < lo) | (x > hi))
+            k = _first(out_k)
+            if k is not None and (not bad.any() or k < _first(bad)):
+                why = f"{w}: {quantity} {x[k]:.3g} outside the file's [{lo:.3g}, {hi:.3g}]"
+            bad |= out_k
+        k = _first(bad)
+        if k is not None:
+            out.append(TruthEvent(float(t[k]), "tire beyond its data", why))
+    return out
 
 
 def _stops(speed: np.ndarray) -> list[int]:

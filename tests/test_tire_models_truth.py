@@ -105,3 +105,19 @@ def test_missing_tire_file_is_one_field_error(tmp_path: Path) -> None:
     p.write_text(text)
     with pytest.raises(VehicleError, match=r"tires\.file: .*nowhere\.tir.*not found"):
         load_vehicle(p)
+
+
+def test_leaving_the_tire_files_range_is_a_truth_event(mf61) -> None:
+    tf = read_tire_file(shipped_tire_path("mf61_205_60R15"))
+    small = simulate(_step(0.5, 2.0), mf61)
+    assert not [e for e in small.truth_events if e.kind == "tire beyond its data"]
+    hard = simulate(_step(20.0, 2.0), mf61)
+    beyond = [e for e in hard.truth_events if e.kind == "tire beyond its data"]
+    assert beyond, [(e.kind, e.detail) for e in hard.truth_events]
+    f = hard.frame
+    # the event's time is the first sample where a range is left while rolling
+    k = int(np.searchsorted(f.t_s.to_numpy(), beyond[0].t_s))
+    a = f[[f"alpha_{w}_rad" for w in ("fl", "fr", "rl", "rr")]].to_numpy()
+    kap = f[[f"kappa_{w}" for w in ("fl", "fr", "rl", "rr")]].to_numpy()
+    out = (a > -tf.alpmin_rad) | (a < -tf.alpmax_rad) | (kap < tf.kpumin) | (kap > tf.kpumax)
+    assert out[k].any() or "gamma" in beyond[0].detail or "fz" in beyond[0].detail
