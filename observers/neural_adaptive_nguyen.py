@@ -24,6 +24,11 @@ Variant ``nao_nguyen_ensemble`` (Section 6, (1.51)): a queue of ``queue_size`` p
 one per Adam step; the prediction is ``sum_q w_q mu_q / sum_q w_q`` with ``w_q = exp(-age_q)`` (the
 printed ``e^(i+1-p)`` grows without bound, read as a recency weight); only the newest network is
 trained and used in the sensitivity.
+
+``run()`` (what the harness calls) is the compiled whole-run loop of
+:mod:`observers.neural_adaptive_nguyen_loop`, teacher included, equal bit for bit to stepping
+``step()``, which stays the plain-Python reference (``ScalarLoopObserver.run(obs, t, Y)`` runs it over
+a whole run).
 """
 
 from __future__ import annotations
@@ -37,7 +42,7 @@ import numpy as np
 
 from harness.errors import InputError
 from harness.tire import jit
-from observers.base import ScalarLoopObserver
+from observers.base import EstimateTrack, ScalarLoopObserver
 from observers.lmi import DesignResult, usable_gains
 from observers.registry import register
 from observers.uio_nguyen import TWO_PI, NguyenUIO
@@ -302,6 +307,16 @@ class NeuralAdaptiveNguyen(ScalarLoopObserver):
         self._started = False
         self.loss_trace: list[float] = []
         self._teacher.reset(self._t, {"vy_mps": self._z[0], "yaw_rate_radps": self._z[1]})
+
+    def run(self, t: np.ndarray, Y: np.ndarray, x0: Mapping[str, float] | None = None) -> EstimateTrack:
+        """Compiled loop (:mod:`observers.neural_adaptive_nguyen_loop`), equal to stepping :meth:`step`.
+
+        Without usable gains (a failed design) the run steps in Python, so that it fails exactly where
+        stepping fails: at the first step that needs the gains.
+        """
+        from observers.neural_adaptive_nguyen_loop import run_compiled
+        track = run_compiled(self, t, Y, x0)
+        return track if track is not None else super().run(t, Y, x0)
 
     def _ensemble_mu(self, x: np.ndarray, delta: float) -> np.ndarray:
         out = np.zeros(N_MU)

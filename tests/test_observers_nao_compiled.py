@@ -1,0 +1,156 @@
+"""The compiled run() of the neural adaptive observers of Nguyen equals stepping the Python step().
+
+``run()`` of ``nao_nguyen``, ``nao_nguyen_stepwise`` and ``nao_nguyen_ensemble`` is one numba kernel
+(network, sensitivity gradient, Adam, the ensemble queue and the teacher UIO); ``step()`` stays the
+plain-Python reference. The observers learn online (Adam on a gradient through 1282 parameters), so
+a dropped term or a reordered sum does not stay small: it changes the trained network and through it
+the estimates. The tests assert the estimates, the loss trace, the trained parameters, the ensemble
+queue and the teacher's state are *bit-equal* to stepping, on a MuJoCo fishhook with automotive sensors
+and on a synthetic run with dropouts, a full outage, a repeated and an irregular time stamp, and that
+run() leaves the observer where stepping leaves it (the next step() agrees).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from harness.vehicle import load_vehicle
+from observers.base import ScalarLoopObserver
+from observers.neural_adaptive_nguyen import NeuralAdaptiveNguyen, init_theta
+from observers.registry import create
+
+SEDAN = load_vehicle("sedan")
+NAMES = ("nao_nguyen", "nao_nguyen_stepwise", "nao_nguyen_ensemble")
+INPUTS = NeuralAdaptiveNguyen.inputs
+
+
+@pytest.fixture(scope="module")
+def fishhook() -> tuple[np.ndarray, np.ndarray]:
+    """``(t, Y)`` of a 6 s MuJoCo fishhook through the scenario's automotive sensors (seed 6)."""
+    from harness.scenario import load_scenario
+    from harness.sensors import load_sensor_config
+    from harness.sensors.suite import emulate
+    from harness.simulate import simulate
+
+    sc = replace(load_scenario("fishhook"), duration_s=6.0)
+    truth = simulate(sc)
+    meas = emulate(truth.frame, SEDAN, load_sensor_config(sc.sensors, sc.sensor_overrides, None), 6,
+                   outages=sc.outages, lane_gaps=sc.lane_gaps).frame
+    return meas["t_s"].to_numpy(dtype=float), meas[list(INPUTS)].to_numpy(dtype=float)
+
+
+def _synthetic() -> tuple[np.ndarray, np.ndarray]:
+    """12 s at 100 Hz: speed ramp, two-tone steering, noise, 15 % dropouts per column, a 1 s outage
+    of everything, nothing in the first 70 ms, a repeated and an irregular time stamp, one 30 ms step
+    (three Euler sub-steps) and a gyro gap longer than the hold time (learning frozen, then resumed)."""
+    n, h = 1200, 0.01
+    t = np.arange(n) * h
+    vx = 14.0 + 4.0 * np.sin(2 * np.pi * t / 8.0)
+    delta = 0.05 * np.sin(2 * np.pi * 0.4 * t) + 0.02 * np.sin(2 * np.pi * 1.3 * t)
+    r = vx * delta / 2.8
+    Y = np.column_stack([vx, r, np.gradient(vx, h), delta])
+    gen = np.random.default_rng(11)
+    Y = Y + gen.normal(0.0, 1e-3, Y.shape) * np.abs(Y).clip(1e-2, None)
+    Y[:7] = np.nan
+    Y[gen.random(Y.shape) < 0.15] = np.nan
+    Y[600:700] = np.nan
+    Y[820:850, 1] = np.nan
+    t[900] = t[899]
+    t[1000:] += 0.0037
+    t[1100:] += 0.02
+    return t, Y
+
+
+def _stepped(obs: ScalarLoopObserver, t: np.ndarray, Y: np.ndarray,
+             x0: dict[str, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Estimates (n, 3) and the unknown input mu_theta (n, 2) [N] from stepping the Python path."""
+    obs.reset(float(t[0]), x0)
+    xs, mus = [], []
+    for i in range(len(t)):
+        xs.append(obs.step(float(t[i]), Y[i]).x)
+        mus.append(obs.unknown_input_N())
+    return np.array(xs), np.array(mus)
+
+
+def _assert_same_state(a: NeuralAdaptiveNguyen, b: NeuralAdaptiveNguyen) -> None:
+    """Everything the next step reads is equal: network, learning state, queue, teacher, latch."""
+    for key in ("_x", "_theta", "_S", "_g", "_m", "_v", "_mu"):
+        np.testing.assert_array_equal(getattr(a, key), getattr(b, key), err_msg=key)
+    for key in ("_adam_t", "_k", "_psi_m", "_r_prev", "_t_r_prev", "_started", "_t", "_u", "_fresh", "_t_last"):
+        assert np.array_equal(np.array(getattr(a, key), dtype=float), np.array(getattr(b, key), dtype=float),
+                              equal_nan=True), key
+    np.testing.assert_array_equal(a.loss_trace, b.loss_trace)
+    assert len(a._queue) == len(b._queue)
+    for qa, qb in zip(a._queue, b._queue, strict=True):
+        np.testing.assert_array_equal(qa, qb)
+    ta, tb = a.teacher(), b.teacher()
+    np.testing.assert_array_equal(ta.zeta_hat(), tb.zeta_hat())
+    np.testing.assert_array_equal(ta._eta, tb._eta)
+    assert (ta._psi_m, ta._tracking, ta._t) == (tb._psi_m, tb._tracking, tb._t)
+
+
+def _check(name: str, t: np.ndarray, Y: np.ndarray, x0: dict[str, float] | None = None) -> np.ndarray:
+    obs = create(name, SEDAN)
+    assert type(obs).run is not ScalarLoopObserver.run  # run() is the compiled loop
+    track = obs.run(t, Y, x0)
+    mu_run = obs.unknown_input_N()
+    ref = create(name, SEDAN)
+    want, mus = _stepped(ref, t, Y, x0)
+    # the run exercised what it must: learning happened, the network moved, estimates vary
+    assert len(ref.loss_trace) > 0.5 * len(t) and ref._adam_t >= 10
+    assert np.abs(ref._theta - init_theta(0)).max() > 1e-4
+    assert np.all(np.isfinite(want)) and np.ptp(want, axis=0).min() > 0.0
+    if name == "nao_nguyen_ensemble":
+        assert len(ref._queue) == 5
+    # bit-equal (which is also "within 1e-9 relative to each state's scale")
+    np.testing.assert_array_equal(track.x, want)
+    np.testing.assert_array_equal(mu_run, mus[-1])
+    _assert_same_state(obs, ref)
+    # run() left the stepped state: the next step agrees
+    t_next, y_next = float(t[-1]) + 0.01, np.nan_to_num(Y[-1], nan=0.02) * 1.001
+    np.testing.assert_array_equal(obs.step(t_next, y_next).x, ref.step(t_next, y_next).x)
+    return want
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_compiled_run_equals_stepping_on_mujoco_fishhook(name: str, fishhook) -> None:
+    t, Y = fishhook
+    assert np.isnan(Y).any() and not np.isnan(Y).all(axis=0).any()  # multi-rate sensors, every column present
+    _check(name, t, Y)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_compiled_run_equals_stepping_with_gaps(name: str) -> None:
+    t, Y = _synthetic()
+    want = _check(name, t, Y)
+    # the outage is predicted through (NaN input = predict only), not frozen or NaN
+    assert np.all(np.isfinite(want[600:700])) and np.ptp(want[600:700, 0]) > 0.0
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_compiled_run_from_initial_state_equals_stepping(name: str) -> None:
+    t, Y = _synthetic()
+    _check(name, t, Y, {"vy_mps": 0.4, "yaw_rate_radps": -0.1})
+
+
+def test_variants_differ() -> None:
+    """The three kernels' paths (every-50-steps Adam, every-step Adam, ensemble) are really different."""
+    t, Y = _synthetic()
+    x = {name: create(name, SEDAN).run(t, Y).x for name in NAMES}
+    assert np.abs(x["nao_nguyen"] - x["nao_nguyen_stepwise"]).max() > 1e-4
+    assert np.abs(x["nao_nguyen"] - x["nao_nguyen_ensemble"]).max() > 1e-6
+
+
+def test_empty_and_all_missing_runs() -> None:
+    """No rows: an empty track. Only NaN: the observer never starts and holds its initial state."""
+    obs = create("nao_nguyen", SEDAN)
+    assert obs.run(np.zeros(0), np.zeros((0, 4))).x.shape == (0, 3)
+    t = np.arange(50) * 0.01
+    Y = np.full((50, 4), np.nan)
+    x = obs.run(t, Y, {"vy_mps": 0.3}).x
+    want, _ = _stepped(create("nao_nguyen", SEDAN), t, Y, {"vy_mps": 0.3})
+    np.testing.assert_array_equal(x, want)
+    assert np.all(x[:, 0] == 0.3) and obs.loss_trace == []
