@@ -50,10 +50,10 @@ from harness.road import road_project, road_surface
 from harness.signals import WHEELS
 from harness.tire import combined_with_camber, jit, radial_load_kernel, shape_array
 from harness.tire_fiala import fiala_forces
+from harness.tire_file import read_tire_file
 from harness.tire_mf61 import mf61_forces
 from harness.tire_models import TIRE_MODEL_CODES, wheel_coefficients
 from harness.truth import RAW_COLUMNS, RAW_INDEX, Truth, build_frame
-from harness.tire_file import read_tire_file
 from harness.truth_events import detect_events, detect_tire_range
 from harness.vehicle import G, VehicleParams, load_vehicle
 
