@@ -159,32 +159,12 @@ def sensitivity_and_gradient(S: np.ndarray, g: np.ndarray, Jth: np.ndarray, Acl:
         s1 = S1[k]
         s2 = S2[k]
         s3 = S3[k]
-        gk = m0 * j0 + m1 * j1
-        gk += e0 * s0
-        gk += e1 * s1
-        gk += e2 * s2
-        gk += e3 * s3
-        g[k] += gk
-        c0 = b00 * j0 + b01 * j1
-        c0 += a00 * s0
-        c0 += a01 * s1
-        c0 += a02 * s2
-        c0 += a03 * s3
-        c1 = b10 * j0 + b11 * j1
-        c1 += a10 * s0
-        c1 += a11 * s1
-        c1 += a12 * s2
-        c1 += a13 * s3
-        c2 = b20 * j0 + b21 * j1
-        c2 += a20 * s0
-        c2 += a21 * s1
-        c2 += a22 * s2
-        c2 += a23 * s3
-        c3 = b30 * j0 + b31 * j1
-        c3 += a30 * s0
-        c3 += a31 * s1
-        c3 += a32 * s2
-        c3 += a33 * s3
+        # each sum left to right, in nao_step's order
+        g[k] += m0 * j0 + m1 * j1 + e0 * s0 + e1 * s1 + e2 * s2 + e3 * s3
+        c0 = b00 * j0 + b01 * j1 + a00 * s0 + a01 * s1 + a02 * s2 + a03 * s3
+        c1 = b10 * j0 + b11 * j1 + a10 * s0 + a11 * s1 + a12 * s2 + a13 * s3
+        c2 = b20 * j0 + b21 * j1 + a20 * s0 + a21 * s1 + a22 * s2 + a23 * s3
+        c3 = b30 * j0 + b31 * j1 + a30 * s0 + a31 * s1 + a32 * s2 + a33 * s3
         S0[k] = s0 + dt * c0
         S1[k] = s1 + dt * c1
         S2[k] = s2 + dt * c2
@@ -234,27 +214,15 @@ def substep(x: np.ndarray, S: np.ndarray, g: np.ndarray, theta: np.ndarray, A: n
             Acl[i, 2] -= L[i, 1]
             Acl[i, 3] -= L[i, 2]
         sensitivity_and_gradient(S, g, Jth, Acl, Bmu, ex, m0, m1, dt)
-    d0 = 0.0
-    d1 = 0.0
-    d2 = 0.0
-    d3 = 0.0
+    dx = ex  # free again: the state derivative of all four rows before x changes
     for i in range(4):
-        v = Bu[i, 0] * u[0] + Bu[i, 1] * u[1] + Bmu[i, 0] * mu[0] + Bmu[i, 1] * mu[1]
+        d = Bu[i, 0] * u[0] + Bu[i, 1] * u[1] + Bmu[i, 0] * mu[0] + Bmu[i, 1] * mu[1]
         for j in range(4):
-            v += A[i, j] * x[j]
-        v += L[i, 0] * ey0 + L[i, 1] * ey1 + L[i, 2] * ey2
-        if i == 0:
-            d0 = v
-        elif i == 1:
-            d1 = v
-        elif i == 2:
-            d2 = v
-        else:
-            d3 = v
-    x[0] += dt * d0
-    x[1] += dt * d1
-    x[2] += dt * d2
-    x[3] += dt * d3
+            d += A[i, j] * x[j]
+        d += L[i, 0] * ey0 + L[i, 1] * ey1 + L[i, 2] * ey2
+        dx[i] = d
+    for i in range(4):
+        x[i] += dt * dx[i]
     return loss
 
 
@@ -338,8 +306,8 @@ def teacher_advance(ts: float, h: float, u: np.ndarray, fresh: np.ndarray, tl: n
     else:
         ts_state[3] = 0.0
     if h > 0.0:
-        # one call site (the UIO's eta ODE when live, the model prediction of zeta otherwise): the
-        # kernel is inlined once, which halves this function's compile time
+        # one call site (the UIO's eta ODE when live, the model prediction of zeta otherwise), so
+        # the kernel is inlined once (compile time)
         if live:
             z, M, G, w_a, w_b, rate = eta, Fs, Gs, w_prev, w1, bounds[0]
         else:
