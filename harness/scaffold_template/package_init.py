@@ -1,0 +1,1 @@
+"""Observers of this project, registered with roadtruth by the entry points in pyproject.toml."""
