@@ -1,4 +1,4 @@
-"""MJCF of the car, generated from a ``VehicleParams`` (+ optional scenario visuals).
+"""MJCF of the car, generated from a ``VehicleParams`` (+ the scenario's visuals for renders).
 
 Layout (shared/notes/mujoco-car-and-tires.md, section 4.1)::
 
@@ -238,13 +238,17 @@ def _ear_clip(poly: list[tuple[float, float]]) -> list[tuple[int, int, int]]:
     return tris
 
 
-def _scenario_visuals(scenario: Any) -> tuple[str, str, tuple[float, float, float, float]]:
-    """(assets, world geoms, ground extent) for the road markings, friction patches and lead car."""
-    road = scenario.road
-    smp = road.samples
+def _ground_extent(scenario: Any) -> tuple[float, float, float, float]:
+    """(x0, x1, y0, y1) [m] of the floor plane: the road's bounding box with a 60 m margin."""
+    smp = scenario.road.samples
     pad = 60.0
-    extent = (float(smp[:, 1].min() - pad), float(smp[:, 1].max() + pad),
-              float(smp[:, 2].min() - pad), float(smp[:, 2].max() + pad))
+    return (float(smp[:, 1].min() - pad), float(smp[:, 1].max() + pad),
+            float(smp[:, 2].min() - pad), float(smp[:, 2].max() + pad))
+
+
+def _scenario_visuals(scenario: Any, extent: tuple[float, float, float, float]) -> tuple[str, str]:
+    """(assets, world geoms) of the road markings, 3D road surface, friction patches and lead car."""
+    road = scenario.road
     assets, geoms = [], []
     half = road.lane_width_m / 2.0
     gaps = tuple(getattr(scenario, "lane_gaps", ()) or ())
@@ -284,18 +288,22 @@ def _scenario_visuals(scenario: Any) -> tuple[str, str, tuple[float, float, floa
                      '<geom type="box" size="2.25 0.9 0.55" pos="0 0 0.75" contype="0" conaffinity="0" rgba="0.8 0.15 0.1 1"/>'
                      '<geom type="box" size="1.2 0.8 0.3" pos="-0.2 0 1.5" contype="0" conaffinity="0" rgba="0.3 0.35 0.45 1"/>'
                      '</body>')
-    return "".join(assets), "".join(geoms), extent
+    return "".join(assets), "".join(geoms)
 
 
-def build_mjcf(vehicle: VehicleParams, scenario: Any = None, *, timestep_s: float = 0.001) -> str:
-    """MJCF text of the car (and the scenario's road markings, friction patches and lead car).
+def build_mjcf(vehicle: VehicleParams, scenario: Any = None, *, timestep_s: float = 0.001,
+               visuals: bool = False) -> str:
+    """MJCF text of the car on the scenario's floor (and, for renders, the scenario's visuals).
 
     Parameters
     ----------
     vehicle : the parameter set; masses and inertias are matched for the whole car.
-    scenario : optional ``Scenario``; adds lane markings (dashed, ``lane_gaps`` skipped), coloured
-        non-colliding friction patches and a mocap ``lead`` body when it has a lead vehicle.
+    scenario : optional ``Scenario``; sizes and places the floor plane under its road.
     timestep_s : simulation step [s] (``implicitfast``).
+    visuals : add the scenario's visual-only geoms: lane markings (dashed, ``lane_gaps`` skipped), the
+        3D road surface mesh, coloured friction patches and a mocap ``lead`` body when it has a lead
+        vehicle. The physics model goes without them: none of them collides or carries mass, yet
+        MuJoCo would place every one of them at every step (thousands of dashes on a long road).
 
     Returns
     -------
@@ -309,9 +317,11 @@ def build_mjcf(vehicle: VehicleParams, scenario: Any = None, *, timestep_s: floa
     half_w = max(vehicle.track_f_m, vehicle.track_r_m) / 2.0 + 0.05
     z_bottom = GROUND_CLEARANCE_M - vehicle.h_cg_m
     z_top = BODY_HEIGHT_M - vehicle.h_cg_m
-    assets, visuals, extent = ("", "", (-500.0, 2500.0, -1000.0, 1000.0))
+    assets, world_visuals, extent = "", "", (-500.0, 2500.0, -1000.0, 1000.0)
     if scenario is not None:
-        assets, visuals, extent = _scenario_visuals(scenario)
+        extent = _ground_extent(scenario)
+        if visuals:
+            assets, world_visuals = _scenario_visuals(scenario, extent)
     floor_z = 0.0
     if scenario is not None and not scenario.road.is_flat:
         # The floor (the body's collision plane, and the ground of the renders) under the lowest road
@@ -347,7 +357,7 @@ def build_mjcf(vehicle: VehicleParams, scenario: Any = None, *, timestep_s: floa
     <light name="sun" directional="true" pos="0 0 50" dir="-0.3 -0.2 -1" diffuse="0.8 0.8 0.8"/>
     <geom name="floor" type="plane" pos="{_f(cx)} {_f(cy)} {_f(floor_z)}" size="{_f(hx)} {_f(hy)} 0.1" material="ground"
           priority="1" contype="1" conaffinity="2" friction="1 0.005 0.0001"/>
-    {visuals}
+    {world_visuals}
     <body name="chassis" pos="0 0 {_f(vehicle.h_cg_m)}">
       <freejoint name="root"/>
       <inertial pos="{_vec(offset)}" mass="{_f(ms)}" diaginertia="{_vec(inertia)}"/>

@@ -60,7 +60,7 @@ class RenderSource:
     def from_truth(cls, truth: Any) -> RenderSource:
         cols = [c for c in ("t_s", "vx_mps", "beta_rad", *(f"mu_{w}" for w in WHEELS), "lead_x_m", "lead_y_m")
                 if c in truth.frame.columns]
-        return cls(frame=truth.frame[cols], qpos=np.asarray(truth.qpos), model_xml=truth.model_xml,
+        return cls(frame=truth.frame[cols], qpos=np.asarray(truth.qpos), model_xml=getattr(truth, "render_xml", truth.model_xml),
                    events=tuple(getattr(truth, "events", ()) or ()))
 
 

@@ -28,6 +28,7 @@ from __future__ import annotations
 import ctypes
 import math
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -55,7 +56,7 @@ from harness.tire_mf61 import mf61_forces
 from harness.tire_models import TIRE_MODEL_CODES, wheel_coefficients
 from harness.truth import RAW_COLUMNS, RAW_INDEX, Truth, build_frame
 from harness.truth_events import detect_events, detect_tire_range
-from harness.vehicle import G, VehicleParams, load_vehicle
+from harness.vehicle import G, VehicleParams, load_vehicle, vehicles_dir
 
 #: Without a relaxation length (no transient slip) the slips are kinematic and need speed [m/s].
 MIN_START_SPEED_NO_RELAXATION_MPS = 3.0
@@ -411,12 +412,30 @@ def _step_functions() -> tuple[Any, Any]:
     return _STEP_FUNCTIONS
 
 
+#: Parsed vehicle sets by (resolved file, modification time [ns], size [bytes]): a suite or a sweep
+#: simulates the same set many times, and parsing its YAML costs more than building the model.
+_VEHICLES: dict[tuple[str, int, int], VehicleParams] = {}
+
+
 def _resolve_vehicle(scenario: Any, vehicle: VehicleParams | str | None) -> VehicleParams:
-    if vehicle is None:
-        return load_vehicle(scenario.vehicle)
-    if isinstance(vehicle, VehicleParams):
-        return vehicle
-    return load_vehicle(vehicle)
+    ref = scenario.vehicle if vehicle is None else vehicle
+    if isinstance(ref, VehicleParams):
+        return ref
+    path = Path(ref)
+    if path.suffix.lower() not in (".yaml", ".yml"):
+        path = vehicles_dir() / f"{ref}.yaml"  # a shipped set's name (harness.vehicle.load_vehicle)
+    try:
+        stat = path.stat()
+    except OSError:
+        return load_vehicle(ref)  # not a file: load_vehicle says why
+    key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size)
+    hit = _VEHICLES.get(key)
+    if hit is None:
+        hit = load_vehicle(ref)
+        if len(_VEHICLES) > 64:
+            _VEHICLES.clear()
+        _VEHICLES[key] = hit
+    return hit
 
 
 def _lead_track(scenario: Any, v: VehicleParams, t: np.ndarray) -> np.ndarray:
@@ -515,27 +534,23 @@ def _events(scenario: Any, frame_mu: np.ndarray, t: np.ndarray, status_t: float 
     return tuple(sorted(ev, key=lambda e: e[0]))
 
 
-def simulate(scenario: Any, vehicle: VehicleParams | str | None = None, seed: int | None = None,
-             dt_s: float = 0.001, *, compiled: bool = True) -> Truth:
-    """Simulate a scenario and return its ground truth.
+@dataclass(frozen=True, eq=False)
+class _Prepared:
+    """Everything ``_run`` needs for one simulation, built by ``_prepare`` (no step taken yet)."""
 
-    Parameters
-    ----------
-    scenario : ``harness.scenario.Scenario``.
-    vehicle : a ``VehicleParams``, a set name/path, or None for the scenario's own vehicle.
-    seed : recorded in the result (default: the scenario's); the truth itself has no randomness.
-    dt_s : simulation step [s] (1 kHz default).
-    compiled : run the numba-compiled loop (default) or the same loop interpreted with the
-        official MuJoCo bindings (the reference path; identical results, ~100x slower).
+    vehicle: VehicleParams
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    xml: str
+    t: np.ndarray  # (n,) step times [s]
+    fz_static: np.ndarray  # (4,) static wheel loads [N]
+    log: np.ndarray  # (n, N_RAW) raw log, written by _run
+    qlog: np.ndarray  # (n, nq) generalized positions per step, written by _run
+    args: tuple[Any, ...]  # _run's arguments after (step1, step2, m_ptr, d_ptr)
 
-    Returns
-    -------
-    Truth; ``status`` is ``"ok"`` or ``"diverged: <cause> at t=<t> s"`` with the frame truncated.
 
-    Raises
-    ------
-    ScenarioError : initial speed below 3 m/s, or a step that is not positive.
-    """
+def _prepare(scenario: Any, vehicle: VehicleParams | str | None, dt_s: float) -> _Prepared:
+    """Validate the inputs, build the physics model at its initial state and the loop's arrays."""
     if not (dt_s > 0.0 and dt_s <= 0.01):
         raise ScenarioError(f"time step must be in (0, 0.01] s (got {dt_s!r})", field="dt_s")
     v = _resolve_vehicle(scenario, vehicle)
@@ -608,6 +623,33 @@ def simulate(scenario: Any, vehicle: VehicleParams | str | None = None, seed: in
             np.ascontiguousarray(scenario.road.samples), verts, meta,
             d.qpos, d.qvel, d.qacc, d.xpos, d.xmat, d.xipos, d.cvel, d.subtree_com, d.xfrc_applied, d.ctrl,
             d.sensordata, m.dof_frictionloss, log, qlog)
+    return _Prepared(v, m, d, xml, t, g.fz_static, log, qlog, args)
+
+
+def simulate(scenario: Any, vehicle: VehicleParams | str | None = None, seed: int | None = None,
+             dt_s: float = 0.001, *, compiled: bool = True) -> Truth:
+    """Simulate a scenario and return its ground truth.
+
+    Parameters
+    ----------
+    scenario : ``harness.scenario.Scenario``.
+    vehicle : a ``VehicleParams``, a set name/path, or None for the scenario's own vehicle.
+    seed : recorded in the result (default: the scenario's); the truth itself has no randomness.
+    dt_s : simulation step [s] (1 kHz default).
+    compiled : run the numba-compiled loop (default) or the same loop interpreted with the
+        official MuJoCo bindings (the reference path; identical results, ~100x slower).
+
+    Returns
+    -------
+    Truth; ``status`` is ``"ok"`` or ``"diverged: <cause> at t=<t> s"`` with the frame truncated.
+
+    Raises
+    ------
+    ScenarioError : initial speed below 3 m/s, or a step that is not positive.
+    """
+    p = _prepare(scenario, vehicle, dt_s)
+    v, m, d, xml, t, log, qlog, args = p.vehicle, p.model, p.data, p.xml, p.t, p.log, p.qlog, p.args
+    drv = scenario.driver
     if compiled:
         step1, step2 = _step_functions()
         k_end, code = _run(step1, step2, m._address, d._address, *args)
@@ -627,7 +669,7 @@ def simulate(scenario: Any, vehicle: VehicleParams | str | None = None, seed: in
     frame = build_frame(log[:k_end], v.lf_m, v.lr_m)
     # What the car did, found on the finished frame (harness.truth_events); road-relative checks
     # only where the driver follows the road (an open-loop profile leaves the nominal road by design).
-    happened = detect_events(frame, fz_static_N=g.fz_static, road=scenario.road if drv.closed_loop_steer else None,
+    happened = detect_events(frame, fz_static_N=p.fz_static, road=scenario.road if drv.closed_loop_steer else None,
                              half_track_m=0.5 * v.track_f_m,
                              divergence=None if code == 0 else (status_t, DIVERGENCE_CAUSES[code]))
     if v.tires.model == "mf61":

@@ -9,6 +9,7 @@ are cheap functions of logged ones (sideslip, axle slip angles and forces, mean 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -95,7 +96,8 @@ class Truth:
     dt_s : simulation step [s].
     frame : DataFrame, one row per step, ``FRAME_COLUMNS`` (canonical signals + extras).
     qpos : (n, nq) MuJoCo generalized positions per step (for renders).
-    model_xml : MJCF that rebuilds the model (``mujoco.MjModel.from_xml_string``).
+    model_xml : MJCF of the model that was stepped (``mujoco.MjModel.from_xml_string``): the car and
+        the floor, without the scenario's visual-only geoms (``render_xml`` has them).
     status : ``"ok"`` or ``"diverged: <cause> at t=<t> s"`` (frame truncated there).
     events : ((t_s, label), ...) sorted by time: the scenario's own, the simulator's and the truth
         events' labels.
@@ -113,6 +115,15 @@ class Truth:
     status: str
     events: tuple[tuple[float, str], ...]
     truth_events: tuple[TruthEvent, ...] = ()
+
+    @cached_property
+    def render_xml(self) -> str:
+        """MJCF of the stepped model plus the scenario's lane markings, road surface, friction patches
+        and lead car (built on first use). Same bodies, joints and ``qpos`` layout as ``model_xml``,
+        so the logged ``qpos`` poses it."""
+        from harness.car_model import build_mjcf
+
+        return build_mjcf(self.vehicle, self.scenario, timestep_s=self.dt_s, visuals=True)
 
     @property
     def ok(self) -> bool:

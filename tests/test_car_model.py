@@ -96,8 +96,8 @@ def test_scenario_visuals_markings_patches_and_lead() -> None:
     sc = load_scenario("mu_step")
     sc_gap = dataclasses.replace(sc, lane_gaps=((0.0, 100.0),))
     v = load_vehicle("sedan")
-    m = mujoco.MjModel.from_xml_string(build_mjcf(v, sc))
-    m_gap = mujoco.MjModel.from_xml_string(build_mjcf(v, sc_gap))
+    m = mujoco.MjModel.from_xml_string(build_mjcf(v, sc, visuals=True))
+    m_gap = mujoco.MjModel.from_xml_string(build_mjcf(v, sc_gap, visuals=True))
     patches = [m.geom(i) for i in range(m.ngeom) if m.geom(i).name.startswith("patch_")]
     assert len(patches) == len(sc.friction.patches)
     assert all(g.contype == 0 and g.conaffinity == 0 for g in patches)
@@ -106,9 +106,39 @@ def test_scenario_visuals_markings_patches_and_lead() -> None:
     n_dash_gap = int(np.sum(m_gap.geom_matid == marking))
     assert n_dash > 0 and n_dash - n_dash_gap == pytest.approx(2 * 100 / 12, abs=2)
     lead = load_scenario("car_following")
-    ml = mujoco.MjModel.from_xml_string(build_mjcf(v, lead))
+    ml = mujoco.MjModel.from_xml_string(build_mjcf(v, lead, visuals=True))
     assert ml.body("lead").mocapid[0] == 0 and ml.nmocap == 1
     assert m.nmocap == 0
+
+
+def _geom_names(m: mujoco.MjModel) -> list[str]:
+    return sorted(m.geom(i).name for i in range(m.ngeom))
+
+
+@pytest.mark.parametrize("scenario", ["mu_step", "hill", "car_following", "gnss_outage"])
+def test_physics_model_has_no_scenario_visuals_and_the_render_model_has_them(scenario: str) -> None:
+    # The markings, patches, road mesh and lead car collide with nothing and weigh nothing, but in
+    # the stepped model MuJoCo would place each of them at every step (cost growing with road length).
+    sc = load_scenario(scenario)
+    v = load_vehicle(sc.vehicle)
+    car_only = mujoco.MjModel.from_xml_string(build_mjcf(v))
+    physics = mujoco.MjModel.from_xml_string(build_mjcf(v, sc))
+    render = mujoco.MjModel.from_xml_string(build_mjcf(v, sc, visuals=True))
+    assert _geom_names(physics) == _geom_names(car_only)  # floor, chassis box, cabin, 3 geoms per wheel
+    assert physics.ngeom == 2 + 3 * 4 + 1 and physics.nmocap == 0 and physics.nmesh == 0
+    assert not np.any(physics.geom_matid == physics.mat("marking").id)
+    marking = int(np.sum(render.geom_matid == render.mat("marking").id))
+    assert marking >= 2 * int((sc.road.length_m - 3.0) // 12.0) - 2 * 20  # two lines of 3 m dashes every 12 m
+    names = _geom_names(render)
+    assert sum(n.startswith("patch_") for n in names) == len(sc.friction.patches)
+    assert ("road_surface" in names) == (not sc.road.is_flat)
+    assert render.nmocap == (1 if sc.lead is not None else 0)
+    # Same joints and bodies of the car: the logged qpos poses the render model.
+    assert (render.nq, render.nv, render.nu) == (physics.nq, physics.nv, physics.nu)
+    assert [render.joint(j).name for j in range(render.njnt)] == [physics.joint(j).name for j in range(physics.njnt)]
+    # The floor under the road is the same plane in both (it is the chassis' collision partner).
+    assert np.array_equal(render.geom("floor").pos, physics.geom("floor").pos)
+    assert np.array_equal(render.geom("floor").size, physics.geom("floor").size)
 
 
 def test_an_implausible_inertia_is_a_vehicle_error() -> None:
@@ -119,7 +149,7 @@ def test_an_implausible_inertia_is_a_vehicle_error() -> None:
 
 def test_renders_offscreen_640x480() -> None:
     v = load_vehicle("sedan")
-    m = mujoco.MjModel.from_xml_string(build_mjcf(v, load_scenario("mu_step")))
+    m = mujoco.MjModel.from_xml_string(build_mjcf(v, load_scenario("mu_step"), visuals=True))
     d = mujoco.MjData(m)
     mujoco.mj_forward(m, d)
     try:

@@ -239,3 +239,34 @@ def test_at_rate_decimates(step_1deg) -> None:
     assert f.iloc[7].equals(step_1deg.frame.iloc[70])
     with pytest.raises(InputError):
         step_1deg.at_rate(300.0)
+
+
+def test_stepped_model_has_no_scenario_visuals_and_the_render_model_poses_from_the_truth() -> None:
+    import mujoco
+
+    sc = dataclasses.replace(load_scenario("car_following"), duration_s=0.3)
+    truth = simulate(sc)
+    stepped = mujoco.MjModel.from_xml_string(truth.model_xml)
+    render = mujoco.MjModel.from_xml_string(truth.render_xml)
+    assert stepped.nmocap == 0 and not np.any(stepped.geom_matid == stepped.mat("marking").id)
+    assert render.nmocap == 1 and np.sum(render.geom_matid == render.mat("marking").id) > 20
+    # The logged qpos places every car body of the render model where the stepped model had it.
+    ds, dr = mujoco.MjData(stepped), mujoco.MjData(render)
+    ds.qpos[:] = dr.qpos[:] = truth.qpos[-1]
+    mujoco.mj_kinematics(stepped, ds)
+    mujoco.mj_kinematics(render, dr)
+    for name in ("chassis", "wheel_fl", "wheel_rr", "knuckle_fr"):
+        assert np.array_equal(dr.xpos[render.body(name).id], ds.xpos[stepped.body(name).id])
+    assert abs(ds.xpos[stepped.body("chassis").id, 0] - truth.frame.x_m.iloc[-1]) < 1e-9
+
+
+def test_an_edited_vehicle_file_is_read_again(tmp_path) -> None:
+    # simulate() keeps parsed vehicle sets; an edit of the file must still take effect.
+    text = open(load_vehicle("sedan").path).read()
+    path = tmp_path / "car.yaml"
+    path.write_text(text)
+    sc = dataclasses.replace(load_scenario("step_steer"), duration_s=0.05)
+    assert simulate(sc, vehicle=str(path)).vehicle.mass_kg == pytest.approx(1500.0)
+    path.write_text(text.replace("\nmass_kg: 1500.0", "\nmass_kg: 1645.25"))
+    assert simulate(sc, vehicle=str(path)).vehicle.mass_kg == pytest.approx(1645.25)
+    assert simulate(sc, vehicle=str(path)).vehicle is simulate(sc, vehicle=str(path)).vehicle
