@@ -253,6 +253,26 @@ def _cmd_replay(a: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_init(a: argparse.Namespace) -> int:
+    from harness.scaffold import init_project
+
+    written = init_project(a.dir)
+    print(f"wrote a starter project with {len(written)} files to {a.dir}; next: pip install -e {a.dir}, then "
+          f"roadtruth check as its README says")
+    return EXIT_OK
+
+
+def _cmd_schema(a: argparse.Namespace) -> int:
+    from harness.config_schema import schema_text, write_schema
+
+    if a.out:
+        write_schema(a.format, Path(a.out))
+        print(f"wrote the JSON Schema of the {a.format} format to {a.out}")
+    else:
+        sys.stdout.write(schema_text(a.format))
+    return EXIT_OK
+
+
 # ---- parser ---------------------------------------------------------------------------------------
 
 def build_parser() -> argparse.ArgumentParser:
@@ -378,7 +398,24 @@ def build_parser() -> argparse.ArgumentParser:
     _add_observer_options(rl)
     _add_format(rl)
     rl.set_defaults(func=_cmd_replay)
+
+    it = sub.add_parser("init", help="write a starter project for your own observer (plug-in package, "
+                        "thresholds, CI workflows) into a new or empty folder")
+    it.add_argument("dir")
+    it.set_defaults(func=_cmd_init)
+
+    sc = sub.add_parser("schema", help="print or write the JSON Schema of a configuration format "
+                        "(for editor completion and validation)")
+    sc.add_argument("format", choices=_SCHEMA_FORMATS, metavar="FORMAT", help=", ".join(_SCHEMA_FORMATS))
+    sc.add_argument("--out", help="write the schema to this file instead of printing it")
+    sc.set_defaults(func=_cmd_schema)
     return p
+
+
+#: Formats of `roadtruth schema` (kept here, not imported, so that building the parser stays cheap;
+#: tests/test_config_schema.py checks it equals harness.config_schema.FORMATS).
+_SCHEMA_FORMATS = ("scenario", "vehicle", "replay_vehicle", "sensors", "faults", "column_map", "thresholds",
+                   "falsify_space", "observer_options")
 
 
 class Terminated(KeyboardInterrupt):

@@ -15,10 +15,14 @@ booleans (not ``yes``/``on``), ``0123`` is decimal, and ``1:20`` or ``2024-05-02
 
 from __future__ import annotations
 
+import itertools
 import math
 import re
 import reprlib
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from contextvars import ContextVar
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -188,6 +192,54 @@ def load_mapping(path: str | Path, error: type[InputError] = InputError) -> dict
     return data
 
 
+@dataclass(frozen=True)
+class FieldRead:
+    """One field a parser asked ``Fields`` for: what it accepts (the source of the JSON Schemas).
+
+    ``kind`` is ``mapping`` (a ``Fields`` opened at ``path``; ``key`` empty), ``closed`` (its
+    ``done()``: no other keys), ``any``, ``has``, ``number``, ``string``, ``boolean``, ``items``.
+    ``path`` is the prefix with list indices written ``[]`` (``road.segments[].arc``).
+    """
+
+    source: str
+    path: str
+    key: str
+    kind: str
+    required: bool = False
+    nullable: bool = False
+    lo: float = -math.inf
+    hi: float = math.inf
+    lo_open: bool = False
+    integer: bool = False
+    choices: tuple[str, ...] | None = None
+    value: Any = None
+    owner: int = 0  # number of the Fields object: tells one reading of a mapping from another
+
+
+@dataclass
+class FieldTrace:
+    """Every :class:`FieldRead` made while :func:`trace_fields` is active."""
+
+    reads: list[FieldRead] = field(default_factory=list)
+
+
+_trace: ContextVar[FieldTrace | None] = ContextVar("roadtruth_field_trace", default=None)
+_OWNER_IDS = itertools.count(1)  # one number per Fields object read while tracing (ids are reused)
+_INDEX = re.compile(r"\[[^\]]*\]")
+
+
+@contextmanager
+def trace_fields() -> Iterator[FieldTrace]:
+    """Record what every ``Fields`` is asked while the block runs (``harness.config_schema`` builds
+    the published JSON Schemas from it, so that the schema is what the parser reads)."""
+    trace = FieldTrace()
+    token = _trace.set(trace)
+    try:
+        yield trace
+    finally:
+        _trace.reset(token)
+
+
 class Fields:
     """Checked access to one mapping of a data file.
 
@@ -210,6 +262,15 @@ class Fields:
         self.error = error
         self.prefix = prefix
         self._seen: set[str] = set()
+        self._owner = next(_OWNER_IDS) if _trace.get() is not None else 0
+        self._note("", "mapping")
+
+    def _note(self, key: str, kind: str, default: Any = ..., **spec: Any) -> None:
+        trace = _trace.get()
+        if trace is not None:
+            trace.reads.append(FieldRead(self.source, _INDEX.sub("[]", self.prefix), key, kind,
+                                         required=default is ..., nullable=default is None, owner=self._owner,
+                                         **spec))
 
     def _name(self, key: str) -> str:
         return f"{self.prefix}.{key}" if self.prefix else key
@@ -218,9 +279,11 @@ class Fields:
         return self.error(reason, source=self.source, field=self._name(key))
 
     def has(self, key: str) -> bool:
+        self._note(key, "has", None)
         return key in self.data
 
     def raw(self, key: str, default: Any = ...) -> Any:
+        self._note(key, "any", default)
         self._seen.add(key)
         if key not in self.data:
             if default is ...:
@@ -230,6 +293,7 @@ class Fields:
 
     def number(self, key: str, default: Any = ..., *, lo: float = -math.inf, hi: float = math.inf,
                lo_open: bool = False, integer: bool = False) -> float:
+        self._note(key, "number", default, lo=lo, hi=hi, lo_open=lo_open, integer=integer)
         v = self.raw(key, default)
         if v is None and default is None:
             return None  # type: ignore[return-value]
@@ -246,6 +310,8 @@ class Fields:
         return int(v) if integer else v
 
     def string(self, key: str, default: Any = ..., *, choices: tuple[str, ...] | None = None) -> str:
+        self._note(key, "string", default, choices=tuple(choices) if choices is not None else None,
+                   value=self.data.get(key))
         v = self.raw(key, default)
         if v is None and default is None:
             return None  # type: ignore[return-value]
@@ -256,6 +322,7 @@ class Fields:
         return v
 
     def boolean(self, key: str, default: Any = ...) -> bool:
+        self._note(key, "boolean", default)
         v = self.raw(key, default)
         if not isinstance(v, bool):
             raise self.fail(key, f"must be true or false (got {short_repr(v)})")
@@ -266,12 +333,14 @@ class Fields:
         return Fields(v if v is not None else {}, source=self.source, error=self.error, prefix=self._name(key))
 
     def items(self, key: str, default: Any = ...) -> list[Any]:
+        self._note(key, "items", default)
         v = self.raw(key, default)
         if not isinstance(v, list):
             raise self.fail(key, f"must be a list (got {short_repr(v)})")
         return v
 
     def done(self) -> None:
+        self._note("", "closed")
         extra = sorted(set(self.data) - self._seen)
         if extra:
             raise self.error(f"unknown field (known: {', '.join(sorted(self._seen))})", source=self.source,
