@@ -26,6 +26,7 @@ function run by the interpreter (``_run.py_func`` with the official bindings) is
 from __future__ import annotations
 
 import ctypes
+import functools
 import math
 import os
 from dataclasses import dataclass
@@ -438,6 +439,13 @@ def _resolve_vehicle(scenario: Any, vehicle: VehicleParams | str | None) -> Vehi
     return hit
 
 
+@functools.lru_cache(maxsize=32)
+def _shape_table(front: Any, rear: Any) -> np.ndarray:
+    """``shape_array`` of a pair of axle tires, kept: its peak-slip bisections run in the interpreter.
+    Shared between runs: ``_run`` only reads it (left writeable, so the compiled signature is the same)."""
+    return shape_array(front, rear)
+
+
 def _lead_track(scenario: Any, v: VehicleParams, t: np.ndarray) -> np.ndarray:
     """(n, 5) lead [x, y, psi, v, a] on the time grid (kinematic, on the road centre line).
 
@@ -618,7 +626,7 @@ def _prepare(scenario: Any, vehicle: VehicleParams | str | None, dt_s: float) ->
     drive_split = np.array(DRIVE_SPLIT[v.drivetrain.layout], dtype=np.float64)
     log = np.full((n, N_RAW), np.nan)
     qlog = np.zeros((n, m.nq))
-    args = (0, n, par, ip, st, shape_array(v.tires.front, v.tires.rear), np.ascontiguousarray(g.fz_static),
+    args = (0, n, par, ip, st, _shape_table(v.tires.front, v.tires.rear), np.ascontiguousarray(g.fz_static),
             _wheel_table(v, dt_s), wheel_coefficients(v.tires), drive_split, brake_split, steer_open, v_target, dv_target, lead,
             np.ascontiguousarray(scenario.road.samples), verts, meta,
             d.qpos, d.qvel, d.qacc, d.xpos, d.xmat, d.xipos, d.cvel, d.subtree_com, d.xfrc_applied, d.ctrl,

@@ -69,19 +69,25 @@ def build_frame(raw: np.ndarray, lf_m: float, lr_m: float) -> pd.DataFrame:
     α_f = δ − atan((v_y + l_f r)/v_x), α_r = −atan((v_y − l_r r)/v_x) (CONTRACT.md); F_y,f/r = sums of
     the wheels' tire-frame lateral forces.
     """
-    cols = {name: raw[:, i] for i, name in enumerate(RAW_COLUMNS)}
-    vx, vy, r = cols["vx_mps"], cols["vy_mps"], cols["yaw_rate_radps"]
-    delta = 0.5 * (cols["delta_fl_rad"] + cols["delta_fr_rad"])
+    # One column-major block filled in place: the DataFrame wraps it without copying or consolidating.
+    out = np.empty((raw.shape[0], len(FRAME_COLUMNS)), order="F")
+    cols = {name: out[:, i] for i, name in enumerate(FRAME_COLUMNS)}
+    for name in FRAME_COLUMNS:
+        if name in RAW_INDEX:
+            cols[name][:] = raw[:, RAW_INDEX[name]]
+    raw_cols = {name: raw[:, i] for i, name in enumerate(RAW_COLUMNS)}
+    vx, vy, r = raw_cols["vx_mps"], raw_cols["vy_mps"], raw_cols["yaw_rate_radps"]
+    delta = 0.5 * (raw_cols["delta_fl_rad"] + raw_cols["delta_fr_rad"])
     # Sideslip and axle slip angles are undefined at standstill: NaN below ROLLING_SPEED_MPS.
     rolling = np.abs(vx) >= ROLLING_SPEED_MPS
     with np.errstate(divide="ignore", invalid="ignore"):
-        cols["beta_rad"] = np.where(rolling, np.arctan2(vy, vx), np.nan)
-        cols["alpha_f_rad"] = np.where(rolling, delta - np.arctan((vy + lf_m * r) / vx), np.nan)
-        cols["alpha_r_rad"] = np.where(rolling, -np.arctan((vy - lr_m * r) / vx), np.nan)
-    cols["delta_rad"] = delta
-    cols["fy_f_N"] = cols["fy_fl_N"] + cols["fy_fr_N"]
-    cols["fy_r_N"] = cols["fy_rl_N"] + cols["fy_rr_N"]
-    return pd.DataFrame({name: cols[name] for name in FRAME_COLUMNS})
+        cols["beta_rad"][:] = np.where(rolling, np.arctan2(vy, vx), np.nan)
+        cols["alpha_f_rad"][:] = np.where(rolling, delta - np.arctan((vy + lf_m * r) / vx), np.nan)
+        cols["alpha_r_rad"][:] = np.where(rolling, -np.arctan((vy - lr_m * r) / vx), np.nan)
+    cols["delta_rad"][:] = delta
+    cols["fy_f_N"][:] = raw_cols["fy_fl_N"] + raw_cols["fy_fr_N"]
+    cols["fy_r_N"][:] = raw_cols["fy_rl_N"] + raw_cols["fy_rr_N"]
+    return pd.DataFrame(out, columns=list(FRAME_COLUMNS), copy=False)
 
 
 @dataclass(frozen=True, eq=False)
