@@ -254,3 +254,22 @@ def test_decimation_keeps_the_min_and_max_of_each_bucket_and_the_gaps():
     assert 30_150 in idx  # the gap stays a gap (a NaN point breaks the line)
     every_nth = np.arange(0, n, n // n_out)
     assert not set(spikes) <= set(every_nth.tolist())  # what the old decimation lost
+
+
+def test_each_state_is_ranked_once_per_metric_per_page(run_dir: Path, monkeypatch: pytest.MonkeyPatch):
+    """The summary's cards and the leaderboard rank the same rows: one ranking per (state, metric)
+    for a whole page, not one per section (the page used to rank every state twice)."""
+    import harness.report.sections.leaderboard as leaderboard
+
+    calls: list[tuple[str, str]] = []
+    real = leaderboard.rank_state
+
+    def counting(rows, state, column, *args, **kwargs):
+        calls.append((state, column))
+        return real(rows, state, column, *args, **kwargs)
+
+    monkeypatch.setattr(leaderboard, "rank_state", counting)
+    run = RunData.load(run_dir)
+    ReportBuilder(run).build()
+    assert calls, "nothing was ranked"
+    assert len(calls) == len(set(calls)) == len(run.scored_states) * len(leaderboard.SWITCHABLE)

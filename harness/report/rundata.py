@@ -300,6 +300,12 @@ class RunData:
         return cls(folder=run_dir, metrics=metrics, run=run)
 
     @cached_property
+    def memo(self) -> dict[Any, Any]:
+        """Results derived from this run that several sections need (e.g. one state's ranks: the
+        summary's cards and the leaderboard), computed once per page build. Values must not be mutated."""
+        return {}
+
+    @cached_property
     def scenario_names(self) -> list[str]:
         listed = [s["name"] for s in self.run.get("scenarios", []) if isinstance(s, dict) and "name" in s]
         return list(dict.fromkeys([*listed, *self.metrics["scenario"].astype(str).unique().tolist()]))

@@ -27,7 +27,6 @@ import zlib
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 from harness.strict_yaml import Fields
 
@@ -90,6 +89,31 @@ def stream(seed: int, *names: str) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=tuple(stable_key(n) for n in names)))
 
 
+#: Up to this many samples the Gauss–Markov recursion runs as a Python loop (well under the 0.4 s
+#: that importing ``scipy.signal`` costs); longer channels use ``scipy.signal.lfilter``.
+GM_LOOP_MAX_SAMPLES = 20_000
+
+
+def gauss_markov_filter(drive: np.ndarray, a: float, g0: float) -> np.ndarray:
+    """``g_k = a g_{k-1} + drive_k`` with ``a g_{-1} = g0`` (the first-order filter 1 / (1 - a z^-1)).
+
+    Bit-identical to ``scipy.signal.lfilter([1], [1, -a], drive, zi=[g0])`` (its transposed direct
+    form computes ``g_k = drive_k + z``, ``z = a g_k`` in the same order), so short channels need not
+    import ``scipy.signal`` at all. [unit of ``drive``]
+    """
+    if drive.size > GM_LOOP_MAX_SAMPLES:
+        from scipy.signal import lfilter
+
+        return lfilter([1.0], [1.0, -a], drive, zi=[g0])[0]
+    out = np.empty(drive.size)
+    z = float(g0)
+    for i, x in enumerate(drive.tolist()):
+        g = x + z
+        out[i] = g
+        z = a * g
+    return out
+
+
 def apply_channel_errors(x: np.ndarray, errors: ChannelErrors, rate_hz: float, seed: int,
                          key: tuple[str, ...]) -> np.ndarray:
     """Apply the error model of the module docstring to ideal samples.
@@ -123,8 +147,7 @@ def apply_channel_errors(x: np.ndarray, errors: ChannelErrors, rate_hz: float, s
         w = stream(seed, *key, "gauss_markov").standard_normal(n + 1)
         drive = errors.gm_std * math.sqrt(1.0 - a * a) * w[1:]
         # Start in the stationary distribution so the error is statistically the same at every sample.
-        g, _ = lfilter([1.0], [1.0, -a], drive, zi=[a * errors.gm_std * w[0]])
-        y = y + g
+        y = y + gauss_markov_filter(drive, a, a * errors.gm_std * w[0])
     sigma = errors.white_std(rate_hz)
     if sigma > 0:
         y = y + sigma * stream(seed, *key, "white").standard_normal(n)

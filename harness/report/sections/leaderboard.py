@@ -69,17 +69,24 @@ def state_ranks(run: RunData, state: str, column: str = "rmse",
                 scenarios: list[str] | None = None) -> dict[str, MeanRank]:
     """Mean ranks of every observer on one state and metric: the one function behind the
     leaderboard's rank column and the summary's best-observer cards."""
+    scenarios = scenarios if scenarios is not None else table_scenarios(run, state)
+    key = ("state_ranks", state, column, tuple(scenarios))
+    if key in run.memo:  # the summary's cards and the leaderboard rank the same rows
+        return run.memo[key]
     sense = next((sense for col, _, _, sense in SWITCHABLE if col == column), "low")
     scaled = next((sc for col, _, sc, _ in SWITCHABLE if col == column), False)
     scale = display_unit(state)[0] if scaled else 1.0
-    return rank_state(state_rows(run, state), state, column, sense, scenarios if scenarios is not None else
-                      table_scenarios(run, state), scale=scale)
+    run.memo[key] = rank_state(state_rows(run, state), state, column, sense, scenarios, scale=scale)
+    return run.memo[key]
 
 
 def state_rows(run: RunData, state: str) -> pd.DataFrame:
     """The metrics rows of one state, plus the run-level rows (empty state: the observer errored
     before giving any estimate) of observers that declare this state in run.json, so that a
     crashed observer shows as failed in the table of each state it estimates instead of vanishing."""
+    key = ("state_rows", state)
+    if key in run.memo:
+        return run.memo[key]
     m = run.metrics
     declared = {str(o.get("name")) for o in run.run.get("observers", [])
                 if isinstance(o, dict) and state in (o.get("states") or [])}
@@ -87,7 +94,8 @@ def state_rows(run: RunData, state: str) -> pd.DataFrame:
     have = set(zip(m.loc[m["state"] == state, "observer"].astype(str), m.loc[m["state"] == state, "scenario"].astype(str),
                    strict=True))
     extra = extra[[(str(o), str(sc)) not in have for o, sc in zip(extra["observer"], extra["scenario"], strict=True)]]
-    return pd.concat([m[m["state"] == state], extra.assign(state=state)], ignore_index=True)
+    run.memo[key] = pd.concat([m[m["state"] == state], extra.assign(state=state)], ignore_index=True)
+    return run.memo[key]
 
 
 def table_scenarios(run: RunData, state: str) -> list[str]:
