@@ -50,3 +50,60 @@ def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path: Path) -> Non
     assert "Traceback" not in res.stderr
     assert not out.exists()
     assert [p for p in tmp_path.iterdir()] == []
+
+
+def test_scenario_listing_gives_the_rows_of_a_full_load() -> None:
+    """`roadtruth scenarios` reads only the headers; every row equals what loading the scenario gives."""
+    from harness.scenario import available_scenarios, load_scenario
+    from harness.scenario_index import scenario_summaries
+
+    rows = scenario_summaries()
+    assert [r["name"] for r in rows] == available_scenarios()
+    for r in rows:
+        s = load_scenario(r["name"])
+        assert r == {"name": s.name, "description": s.description, "standard": s.standard, "tags": list(s.tags),
+                     "vehicle": s.vehicle, "duration_s": s.duration_s, "initial_speed_mps": s.initial_speed_mps}
+
+
+HEAVY = ("numba", "mujoco", "cvxpy", "plotly", "dask", "jinja2", "scipy.signal")
+
+
+def _loaded_after(code: str) -> list[str]:
+    probe = (f"import sys, json, contextlib, io\n{code}\n"
+             f"print(json.dumps([m for m in {HEAVY!r} if m in sys.modules]))")
+    res = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def test_scenarios_command_imports_none_of_the_compiled_or_report_stack() -> None:
+    code = ("from harness.cli import main\n"
+            "with contextlib.redirect_stdout(io.StringIO()) as out:\n"
+            "    assert main(['scenarios']) == 0\n"
+            "assert 'step_steer' in out.getvalue()")
+    assert _loaded_after(code) == []
+
+
+def test_simulate_path_imports_neither_the_report_builder_nor_scipy_signal() -> None:
+    """`roadtruth simulate` writes tables and JSON: no page builder (jinja2, plotly), no scipy.signal."""
+    loaded = _loaded_after("import harness.pipeline, harness.sensors, harness.table_io")
+    assert not {"jinja2", "plotly", "scipy.signal"} & set(loaded), loaded
+
+
+def test_quick_exit_runs_atexit_handlers_and_flushes_before_leaving() -> None:
+    code = ("import atexit, sys\nfrom harness import cli\n"
+            "atexit.register(lambda: sys.stdout.write('handler ran\\n'))\n"
+            "sys.stdout.write('x' * 100000)\n"
+            "cli._leave(3)\n")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 3
+    assert res.stdout == "x" * 100000 + "handler ran\n"
+
+
+def test_console_script_keeps_exit_codes_and_whole_output() -> None:
+    res = run_cli("scenarios", "--json")
+    assert res.returncode == 0, res.stderr
+    names = [r["name"] for r in json.loads(res.stdout)]
+    assert "step_steer" in names
+    bad = run_cli("scenarios", "--no-such-flag")
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1
