@@ -62,6 +62,9 @@ definitions, ``v_y = v_x tan(delta - alpha_f) - l_f r`` (decreasing in ``alpha_f
 interval, the two are intersected (their hull if they are disjoint, which only a broken slip
 inclusion can cause), and ``beta = atan(v_y / v_x)`` is monotone. Point estimates are midpoints.
 
+*Compiled.* ``step()`` and ``run()`` call the same numba kernel (:mod:`observers.interval_wang_loop`),
+with one sample or the whole log, so they agree bit for bit.
+
 Variants: ``interval_wang`` (fresh Theorem 5 design, certified) and ``interval_wang_printed`` (the
 gain printed in (4.47), which is not Metzler at any vertex pair: it runs with the same equations,
 ``certified = False`` and the reason in the run's status; its bounds carry no guarantee).
@@ -73,9 +76,12 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+import numpy as np
+
 from harness.errors import InputError
-from observers.base import ScalarLoopObserver
-from observers.bicycle import axle_stiffness, expm2_zoh, slip_model_terms
+from observers.base import EstimateTrack, ScalarLoopObserver, StepOutput
+from observers.bicycle import axle_stiffness, slip_model_terms
+from observers.interval_wang_loop import N_PAR, derive_bounds, interval_run
 from observers.lmi import DesignResult, usable_gains
 from observers.registry import register
 
@@ -155,6 +161,12 @@ class IntervalWang(ScalarLoopObserver):
         if not (self._ny >= 0.0 and self._nr >= 0.0):
             raise InputError("y_error_bound_rad and yaw_rate_error_bound_radps must be >= 0", field=f)
         self._L: tuple[float, ...] | None = None
+        # the kernel's constants (observers.interval_wang_loop); gains filled in when first needed
+        self._par = np.array([0.0] * 6 + [*self._A1, *self._bf0, *self._lip, *self._vm, *self._vp, self._vlo,
+                              self._vhi, self._alo, self._ahi, self._ab, self._hold, self._vmin, self._ny,
+                              self._nr, self._lf, self._lr])
+        assert self._par.shape == (N_PAR,)
+        self._par_has_gains = False
 
     def _compute_design(self) -> DesignResult:
         from observers.interval_wang_design import design_for
@@ -183,121 +195,49 @@ class IntervalWang(ScalarLoopObserver):
         return z
 
     def _reset_extra(self) -> None:
-        self._have_delta = False
-        self._derive()
+        self._ku = np.full(4, math.nan)       # held (delta, r, v_x, a_x)
+        self._ktl = np.full(4, -math.inf)     # their arrival times [s]
+        self._kz = np.array(self._z, dtype=float)
+        self._ks = np.array([self._t, 0.0])   # (t_cur, have_delta)
+        x, lo, hi = np.empty(4), np.empty(4), np.empty(4)
+        derive_bounds(self._ku, self._kz, False, self._par, x, lo, hi)   # the initial bracket
+        self._last = (x, lo, hi)
 
-    def _fallback(self, delta: float) -> None:
-        b = self._ab
-        self._z = [b - delta, b, -b - delta, -b]
+    def _compiled(self, t: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Advance through ``t`` (n,) [s], ``Y`` (n, 4) in the shared kernel; (x, lo, hi), each (n, 4)."""
+        if not self._par_has_gains:
+            self._par[:6] = self.gains()   # a failed design raises here, on the first sample
+            self._par_has_gains = True
+        n = t.shape[0]
+        x, lo, hi = np.empty((n, 4)), np.empty((n, 4)), np.empty((n, 4))
+        interval_run(t, Y, self._ku, self._ktl, self._kz, self._ks, self._par, x, lo, hi)
+        if n:
+            self._last = (x[-1].copy(), lo[-1].copy(), hi[-1].copy())
+        return x, lo, hi
+
+    def step(self, t_s: float, y: np.ndarray) -> StepOutput:
+        """One sample through the compiled kernel (the same code ``run()`` loops in, so the same bits)."""
+        x, lo, hi = self._compiled(np.array([float(t_s)]),
+                                   np.ascontiguousarray(np.asarray(y, dtype=float).reshape(1, 4)))
+        return StepOutput(x[0], lo[0], hi[0])
+
+    def run(self, t: np.ndarray, Y: np.ndarray, x0: Mapping[str, float] | None = None) -> EstimateTrack:
+        """Reset at ``t[0]`` and advance through the whole log in one compiled call (equal to stepping)."""
+        t = np.ascontiguousarray(t, dtype=float)
+        Y = np.ascontiguousarray(np.asarray(Y, dtype=float).reshape(len(t), len(self.inputs)))
+        if len(t):
+            self.reset(float(t[0]), x0)
+        x, lo, hi = self._compiled(t, Y)
+        return EstimateTrack(self.name, tuple(self.states), t, x, lo, hi)
 
     def _advance(self, t_s: float, y: list[float]) -> None:
-        h = self._tick(t_s, y)
-        delta, r, vx, ax = self._u
-        if delta != delta:
-            self._derive()
-            return
-        z = self._z
-        if not self._have_delta:
-            z[0] -= delta
-            z[2] -= delta
-            self._have_delta = True
-        tl = self._t_last
-        if (r != r or vx != vx or ax != ax or t_s - min(tl[0], tl[1], tl[2]) > self._hold
-                or vx < self._vlo or vx > self._vhi):
-            self._fallback(delta)
-        elif h > 0.0:
-            self._integrate(h, delta, r, vx, ax)
-        self._derive()
-
-    def _integrate(self, h: float, delta: float, r: float, vx: float, ax: float) -> None:
-        l0a, l0b, l1a, l1b, l2a, l2b = self._L if self._L is not None else self.gains()
-        A, B, lip = self._A1, self._bf0, self._lip
-        vm0, vm1 = self._vm
-        vp0, vp1 = self._vp
-        ac = self._alo if ax < self._alo else (self._ahi if ax > self._ahi else ax)
-        e1 = 1.0 / vx
-        e2 = ac * e1
-        la = l0a + e1 * l1a + e2 * l2a
-        lb = l0b + e1 * l1b + e2 * l2b
-        # A_L(eta, xi0) = A(eta, xi0) - L(eta) [1, -1]
-        a11, a12 = e1 * A[0] - e2 - la, e1 * A[1] + la
-        a21, a22 = e1 * A[2] - lb, e1 * A[3] - e2 + lb
-        yp = -(self._lf + self._lr) * r / (vx if vx > self._vmin else self._vmin)  # y - delta
-        g1 = e1 * A[0] * delta + r + la * yp
-        g2 = e1 * A[2] * delta + r + lb * yp
-        k11, k12, k21, k22 = e1 * lip[0], e1 * lip[1], e1 * lip[2], e1 * lip[3]
-        # bounded input errors enter the error dynamics as (dr) (1, 1) + L(eta) d(y - delta)
-        n1 = self._nr + abs(la) * self._ny
-        n2 = self._nr + abs(lb) * self._ny
-        n = 1
-        while True:
-            hs = h / n
-            E, G = expm2_zoh(a11, a12, a21, a22, hs)
-            q11, q12, q21, q22 = abs(G[0]), abs(G[1]), abs(G[2]), abs(G[3])
-            # M = |G| Lambda; (I - M)^-1 >= 0 needs m11 < 1, m22 < 1 and det > 0
-            m11, m12 = q11 * k11 + q12 * k21, q11 * k12 + q12 * k22
-            m21, m22 = q21 * k11 + q22 * k21, q21 * k12 + q22 * k22
-            det = (1.0 - m11) * (1.0 - m22) - m12 * m21
-            if (m11 < 1.0 and m22 < 1.0 and det > 0.0) or n >= 1024:
-                break
-            n *= 2
-        c11, c12, c21, c22 = (1.0 - m22) / det, m12 / det, m21 / det, (1.0 - m11) / det
-        z = self._z
-        for _ in range(n):
-            out: list[float] = []
-            for up in (True, False):
-                s1, s2 = (z[0], z[1]) if up else (z[2], z[3])
-                af, ar = s1 + delta, s2
-                # Lemma 12 with T = eta1 Bf0 diag(alpha): row sums of max / min over v in [v-, v+]
-                t11, t12, t21, t22 = e1 * B[0] * af, e1 * B[1] * ar, e1 * B[2] * af, e1 * B[3] * ar
-                if up:
-                    w1 = (t11 * vp0 if t11 >= 0.0 else t11 * vm0) + (t12 * vp1 if t12 >= 0.0 else t12 * vm1)
-                    w2 = (t21 * vp0 if t21 >= 0.0 else t21 * vm0) + (t22 * vp1 if t22 >= 0.0 else t22 * vm1)
-                else:
-                    w1 = (t11 * vm0 if t11 >= 0.0 else t11 * vp0) + (t12 * vm1 if t12 >= 0.0 else t12 * vp1)
-                    w2 = (t21 * vm0 if t21 >= 0.0 else t21 * vp0) + (t22 * vm1 if t22 >= 0.0 else t22 * vp1)
-                f1 = abs(a11 * s1 + a12 * s2 + g1 + w1) + n1
-                f2 = abs(a21 * s1 + a22 * s2 + g2 + w2) + n2
-                p1, p2 = q11 * f1 + q12 * f2, q21 * f1 + q22 * f2
-                d1, d2 = c11 * p1 + c12 * p2, c21 * p1 + c22 * p2   # drift bound D over the step
-                i1, i2 = k11 * d1 + k12 * d2, k21 * d1 + k22 * d2
-                if up:
-                    u1, u2 = g1 + w1 + i1 + n1, g2 + w2 + i2 + n2
-                else:
-                    u1, u2 = g1 + w1 - i1 - n1, g2 + w2 - i2 - n2
-                out += [E[0] * s1 + E[1] * s2 + G[0] * u1 + G[1] * u2,
-                        E[2] * s1 + E[3] * s2 + G[2] * u1 + G[3] * u2]
-            z = out
-        self._z = z
-
-    def _derive(self) -> None:
-        """Slip bounds in alpha coordinates and the derived v_y, beta bounds; midpoints as estimates."""
-        delta, r, vx, _ = self._u
-        zu1, zu2, zl1, zl2 = self._z
-        d = delta if self._have_delta else 0.0
-        afu, afl, aru, arl = zu1 + d, zl1 + d, zu2, zl2
-        if self._have_delta and r == r and vx == vx:
-            v = vx if vx > self._vmin else self._vmin
-            lim = 1.5
-            fl = v * math.tan(max(-lim, min(lim, d - afu))) - self._lf * r
-            fh = v * math.tan(max(-lim, min(lim, d - afl))) - self._lf * r
-            rl = self._lr * r - v * math.tan(max(-lim, min(lim, aru)))
-            rh = self._lr * r - v * math.tan(max(-lim, min(lim, arl)))
-            vyl, vyh = max(fl, rl), min(fh, rh)
-            if vyl > vyh:  # disjoint: inclusion already lost somewhere; report the hull
-                vyl, vyh = min(fl, rl), max(fh, rh)
-            bl, bh = math.atan(vyl / v), math.atan(vyh / v)
-        else:
-            vyl, vyh, bl, bh = -self._vhi, self._vhi, -0.5 * math.pi, 0.5 * math.pi
-        self._lo = [afl, arl, bl, vyl]
-        self._hi = [afu, aru, bh, vyh]
-        self._x = [0.5 * (afl + afu), 0.5 * (arl + aru), 0.5 * (bl + bh), 0.5 * (vyl + vyh)]
+        self.step(t_s, np.array(y, dtype=float))
 
     def _values(self) -> list[float]:
-        return self._x
+        return self._last[0].tolist()
 
     def _bounds(self) -> tuple[list[float], list[float]]:
-        return self._lo, self._hi
+        return self._last[1].tolist(), self._last[2].tolist()
 
 
 @register

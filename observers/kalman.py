@@ -38,22 +38,23 @@ Robustness of the nonlinear filters on real data (a tire model is never exactly 
   only holds them at its edge.
 
 The EKF and UKF steps are compiled kernels (``ekf_advance``, ``ukf_advance``) on floats; their
-``py_func`` is the plain-Python twin, tested equal. numba caches each kernel per source file: after
+``py_func`` is the plain-Python twin, tested equal. ``step()`` and ``run()`` of every filter call the
+same compiled loop (:mod:`observers.kalman_loop`, one sample or the whole log), so they agree bit for bit. numba caches each kernel per source file: after
 editing ``observers/tire_curves.py`` (or ``expm2_zoh``) delete ``observers/__pycache__/*.nbi, *.nbc``.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Mapping
+from typing import Any, ClassVar
 
 import numpy as np
 
 from harness.errors import InputError
 from harness.tire import jit
 from harness.vehicle import G
-from observers.base import ScalarLoopObserver
+from observers.base import EstimateTrack, ScalarLoopObserver, StepOutput
 from observers.bicycle import axle_stiffness, expm2_zoh
 from observers.registry import register
 from observers.tire_curves import (
@@ -337,6 +338,7 @@ class _BicycleFilter(ScalarLoopObserver):
     states = _STATES
     has_covariance = True
     default_options = dict(_OPTIONS)
+    _kind: ClassVar[int]   # which filter observers.kalman_loop.filter_run runs
 
     def _setup(self) -> None:
         v, o = self.vehicle, self.options
@@ -345,13 +347,49 @@ class _BicycleFilter(ScalarLoopObserver):
         self._q1, self._q2 = float(o["process_std_vy_mps2"]) ** 2, float(o["process_std_r_radps2"]) ** 2
         self._Rr, self._Ray = float(o["meas_std_r_radps"]) ** 2, float(o["meas_std_ay_mps2"]) ** 2
         self._vmin = float(o["vx_min_mps"])
+        # constants of the compiled loop (observers.kalman_loop)
+        self._kp = np.array([self._m, self._iz, self._lf, self._lr, self._cf, self._cr, self._vmin, self._q1,
+                             self._q2, self._Rr, self._Ray])
+        self._model = np.zeros(1)    # tire curves and filter arrays: the nonlinear filters' own
+        self._filt = np.zeros(N_FILT)
 
     def _initial_state(self) -> list[float]:
         return [0.0, 0.0]
 
+    def _compiled(self, t: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Advance through ``t`` (n,) [s], ``Y`` (n, 4) in the shared kernel; (x, var), each (n, 5)."""
+        from observers.kalman_loop import filter_run
+
+        u, fresh, tl = np.array(self._u), np.array(self._fresh, dtype=np.bool_), np.array(self._t_last)
+        st = np.array([self._t, self._z[0], self._z[1], self._P[0], self._P[1], self._P[2], self._ay_lp])
+        n = t.shape[0]
+        x, var = np.empty((n, 5)), np.empty((n, 5))
+        filter_run(t, Y, self._kind, u, fresh, tl, st, self._model, self._filt, self._kp, x, var)
+        self._u, self._fresh, self._t_last = u.tolist(), fresh.tolist(), tl.tolist()
+        self._t, self._z, self._P, self._ay_lp = float(st[0]), st[1:3].tolist(), st[3:6].tolist(), float(st[6])
+        return x, var
+
+    def step(self, t_s: float, y: np.ndarray) -> StepOutput:
+        """One sample through the compiled kernel (the same code ``run()`` loops in, so the same bits)."""
+        x, _ = self._compiled(np.array([float(t_s)]), np.ascontiguousarray(np.asarray(y, dtype=float).reshape(1, 4)))
+        return StepOutput(x[0], cov=self._covariance())
+
+    def run(self, t: np.ndarray, Y: np.ndarray, x0: Mapping[str, float] | None = None) -> EstimateTrack:
+        """Reset at ``t[0]`` and advance through the whole log in one compiled call (equal to stepping)."""
+        t = np.ascontiguousarray(t, dtype=float)
+        Y = np.ascontiguousarray(np.asarray(Y, dtype=float).reshape(len(t), len(self.inputs)))
+        if len(t):
+            self.reset(float(t[0]), x0)
+        x, var = self._compiled(t, Y)
+        return EstimateTrack(self.name, tuple(self.states), t, x, var=var)
+
+    def _advance(self, t_s: float, y: list[float]) -> None:
+        self.step(t_s, np.array(y, dtype=float))
+
     def _reset_extra(self) -> None:
         o = self.options
         self._P = [float(o["init_std_vy_mps"]) ** 2, 0.0, float(o["init_std_r_radps"]) ** 2]
+        self._ay_lp = 0.0   # low-passed measured a_y of the grip adaptation [m/s^2] (nonlinear filters)
 
     def _vx(self) -> float:
         vx = self._u[1]
@@ -391,6 +429,7 @@ class KalmanBicycle(_BicycleFilter):
     """Linear Kalman filter on the speed-scheduled linear bicycle model (v_y, r); measures r and a_y."""
 
     name = "kf_bicycle"
+    _kind = 0   # kalman_loop.LINEAR_KF
     citation = "Kalman filter on the linear single-track model (e.g. Leanza et al., Sensors 21(16):5409, 2021)"
 
     def discrete_model(self, vx_mps: float, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -414,30 +453,6 @@ class KalmanBicycle(_BicycleFilter):
         m, lf, lr, cf, cr = self._m, self._lf, self._lr, self._cf, self._cr
         return -(cf + cr) / (m * v), -(lf * cf - lr * cr) / (m * v), cf / m
 
-    def _advance(self, t_s: float, y: list[float]) -> None:
-        h = self._tick(t_s, y)
-        delta, vx, r_meas, ay_meas = self._u
-        if delta != delta or vx != vx:
-            return
-        v = vx if vx > self._vmin else self._vmin
-        x1, x2 = self._z
-        p11, p12, p22 = self._P
-        if h > 0.0:
-            a11, a12, a21, a22, b1, b2 = self._continuous(v)
-            E, G_ = expm2_zoh(a11, a12, a21, a22, h)
-            g1, g2 = b1 * delta, b2 * delta
-            x1, x2 = E[0] * x1 + E[1] * x2 + G_[0] * g1 + G_[1] * g2, E[2] * x1 + E[3] * x2 + G_[2] * g1 + G_[3] * g2
-            p11, p12, p22 = _propagate_cov(E, p11, p12, p22, self._q1 * h, self._q2 * h)
-        fresh = self._fresh
-        if fresh[2]:
-            x1, x2, p11, p12, p22 = _joseph(x1, x2, p11, p12, p22, 0.0, 1.0, r_meas - x2, self._Rr, math.inf)
-        if fresh[3]:
-            c1, c2, d = self._ay_row(v)
-            resid = ay_meas - c1 * x1 - c2 * x2 - d * delta
-            x1, x2, p11, p12, p22 = _joseph(x1, x2, p11, p12, p22, c1, c2, resid, self._Ray, math.inf)
-        self._z = [x1, x2]
-        self._P = [p11, p12, p22]
-
 
 class _NonlinearBicycle(_BicycleFilter):
     """EKF/UKF shell: options, model and filter arrays; the step is a compiled kernel."""
@@ -447,7 +462,6 @@ class _NonlinearBicycle(_BicycleFilter):
     #: +-beta_max exactly (same v_x); the yaw-rate face of the box moves with speed and is not a
     #: static bound. ``_setup`` replaces this default by the instance's own ``beta_max_rad``.
     state_bounds = {"beta_rad": (-_NONLINEAR_OPTIONS["beta_max_rad"], _NONLINEAR_OPTIONS["beta_max_rad"])}
-    _kernel: Callable[..., tuple[float, float, float, float, float]]
 
     def _option(self, key: str, lo: float, hi: float) -> float:
         value: Any = self.options[key]
@@ -489,24 +503,10 @@ class _NonlinearBicycle(_BicycleFilter):
         if hasattr(self, "_model0"):
             self._model[:] = self._model0
             self._filt[:] = self._filt0
-        self._ay_lp = 0.0
 
     def grip(self) -> float:
         """The peak scale the tire curves have now, ``k`` [1] (peak lateral force ``k m g``)."""
         return float(self._model[M_GRIP])
-
-    def _advance(self, t_s: float, y: list[float]) -> None:
-        h = self._tick(t_s, y)
-        delta, vx, r_meas, ay_meas = self._u
-        if delta != delta or vx != vx:
-            return
-        v = vx if vx > self._vmin else self._vmin
-        z, P, fresh = self._z, self._P, self._fresh
-        self._ay_lp = adapt_grip(self._ay_lp, ay_meas, fresh[3], h, self._model, self._filt)
-        vy, r, p11, p12, p22 = self._kernel(z[0], z[1], P[0], P[1], P[2], delta, v, h, r_meas, ay_meas,
-                                            fresh[2], fresh[3], self._model, self._filt)
-        self._z = [vy, r]
-        self._P = [p11, p12, p22]
 
     def simulate_step(self, x: tuple[float, float], delta: float, vx: float, h: float) -> tuple[float, float]:
         """The filter's own mean propagation of ``x = (v_y, r)`` over ``h`` [s] (for tests)."""
@@ -529,9 +529,7 @@ class EKFBicycle(_NonlinearBicycle):
     citation = ("EKF on the single-track model with Magic Formula axle forces "
                 "(H. B. Pacejka, Tire and Vehicle Dynamics, 3rd ed., 2012, ch. 4)")
 
-    def _setup(self) -> None:
-        super()._setup()
-        self._kernel = ekf_advance
+    _kind = 1   # kalman_loop.EKF
 
 
 @register
@@ -541,6 +539,4 @@ class UKFBicycle(_NonlinearBicycle):
     name = "ukf_bicycle"
     citation = "UKF (Julier & Uhlmann, Proc. IEEE 92(3), 2004) on the Magic Formula single-track model"
 
-    def _setup(self) -> None:
-        super()._setup()
-        self._kernel = ukf_advance
+    _kind = 2   # kalman_loop.UKF

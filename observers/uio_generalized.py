@@ -36,99 +36,31 @@ States: ``vy_mps``, ``yaw_rate_radps``, ``beta_rad``; the unknown input is a non
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from harness.errors import InputError
-from harness.tire import jit
-from observers.base import EstimateTrack, ScalarLoopObserver
-from observers.levant_differentiator import LevantDifferentiator
+from observers.base import EstimateTrack, ScalarLoopObserver, StepOutput
+from observers.levant_differentiator import levant_gains
 from observers.lmi import DesignResult, usable_gains
 from observers.registry import register
-from observers.takagi_sugeno import expm_taylor
 from observers.uio_generalized_design import (
     N_BASIS,
     GeneralizedModel,
-    basis,
     generalized_model,
     unknown_input_matrix,
 )
-from observers.uio_nguyen import SUBSTEP_RATE, TWO_PI, affine_rk4
+from observers.uio_generalized_loop import (
+    HAVE_ZETA,
+    PSI_M,
+    UIOKernelState,
+    balanced_constants,
+    generalized_run,
+    uio_update,
+)
 from observers.uio_nguyen_design import N_X, vehicle_model
-
-
-@jit
-def exact_affine_step(z: np.ndarray, Fs: np.ndarray, Gs: np.ndarray, c: np.ndarray, w0: np.ndarray,
-                      w1: np.ndarray, h: float) -> None:
-    """Advance ``z' = F z + G w(t)`` by ``h`` [s] exactly, in place.
-
-    ``F = sum_k c_k Fs[k]`` (Fs: (nb, n, n)), ``G`` likewise (Gs: (nb, n, m)); ``w`` linear from
-    ``w0`` to ``w1`` over the step. Uses ``exp`` of the (n + 2)-square augmented matrix
-    ``[[F h, b0 h, db h], [0, 0, 0], [0, 1, 0]]`` acting on ``(z, 1, 0)``.
-    """
-    n, m, nb = z.shape[0], w0.shape[0], c.shape[0]
-    M = np.zeros((n + 2, n + 2))
-    for i in range(n):
-        b0 = 0.0
-        b1 = 0.0
-        for k in range(nb):
-            ck = c[k]
-            if ck == 0.0:
-                continue
-            for j in range(n):
-                M[i, j] += ck * Fs[k, i, j] * h
-            for j in range(m):
-                g = ck * Gs[k, i, j]
-                b0 += g * w0[j]
-                b1 += g * w1[j]
-        M[i, n] = b0 * h
-        M[i, n + 1] = (b1 - b0) * h
-    M[n + 1, n] = 1.0
-    E = expm_taylor(M)
-    out = np.empty(n)
-    for i in range(n):
-        s = E[i, n]
-        for j in range(n):
-            s += E[i, j] * z[j]
-        out[i] = s
-    for i in range(n):
-        z[i] = out[i]
-
-
-class CausalDerivative:
-    """Causal derivative of an irregularly sampled signal: ``"fd_lowpass"`` or ``"levant"``.
-
-    ``fd_lowpass``: backward difference ``(f_k - f_(k-1)) / tau`` through a first-order low-pass with
-    time constant ``lowpass_s`` [s] (exact discretisation ``exp(-tau / T)``); delay about ``T + tau/2``.
-    ``levant``: first-order Levant differentiator with Lipschitz constant ``lipschitz`` (bound on ``|f''|``).
-    """
-
-    def __init__(self, kind: str, lowpass_s: float, lipschitz: float) -> None:
-        self.kind, self.T = kind, float(lowpass_s)
-        self._lev = LevantDifferentiator(1, lipschitz) if kind == "levant" else None
-        self.reset()
-
-    def reset(self) -> None:
-        self.value = 0.0
-        self._prev = math.nan
-        if self._lev is not None:
-            self._lev.reset()
-
-    def update(self, f: float, tau: float) -> float:
-        """Feed ``f`` taken ``tau`` [s] after the previous sample; returns the derivative estimate."""
-        if self._lev is not None:
-            self._lev.update(f, tau)
-            self.value = self._lev.z[1]
-            return self.value
-        if self._prev == self._prev and tau > 0.0:
-            raw = (f - self._prev) / tau
-            a = math.exp(-tau / self.T) if self.T > 0.0 else 0.0
-            self.value = a * self.value + (1.0 - a) * raw
-        self._prev = f
-        return self.value
 
 
 @register
@@ -180,7 +112,7 @@ class GeneralizedUIO(ScalarLoopObserver):
         self._nmu = self._Bmu.shape[1]
         self._gm: GeneralizedModel | None = None
         self._consts: tuple[np.ndarray, ...] | None = None
-        self._balanced: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # see uio_generalized_loop
+        self._kernel: tuple[Any, ...] | None = None  # arguments of generalized_run that never change
 
     def generalized_model(self) -> GeneralizedModel:
         """(1.27)-(1.31) for this observer's options (raises InputError if Assumption 5 fails)."""
@@ -217,133 +149,94 @@ class GeneralizedUIO(ScalarLoopObserver):
             self._consts = (np.ascontiguousarray(Fs), np.ascontiguousarray(Gws), np.ascontiguousarray(Q), Mp, Gp)
         return self._consts
 
+    def kernel_constants(self) -> tuple[Any, ...]:
+        """The constant arguments of :func:`~observers.uio_generalized_loop.generalized_run`.
+
+        ``(Fb, Gb, d, Q, Mp, Gp, C_chi, dpsi, par, summed, levant)``: the basis balanced by the powers of
+        two ``d``, ``Q_zeta``, the prediction model, ``D_bar[k0 + 1]`` (the psi row, zero when summed),
+        ``par = (v_lo, v_hi, hold_s, lowpass_s, g0, g1, delta2)``. A failed design raises here.
+        """
+        if self._kernel is None:
+            Fs, Gws, Q, Mp, Gp = self.constants()
+            gm = self.generalized_model()
+            Fb, Gb, dbal = balanced_constants(Fs, Gws, 0.5 * (self._vlo + self._vhi))
+            o = self.options
+            levant = o["differentiator"] == "levant"
+            g0, g1 = levant_gains(1, float(o["levant_lipschitz"])) if levant else (0.0, 0.0)
+            par = np.array([self._vlo, self._vhi, self._hold, float(o["lowpass_s"]), g0, g1, gm.delta2])
+            k0 = 2 * gm.n_y
+            dpsi = np.zeros(gm.n_mu) if gm.summed else np.ascontiguousarray(gm.D_bar[k0 + 1], dtype=float)
+            self._kernel = (Fb, Gb, dbal, np.ascontiguousarray(Q), np.ascontiguousarray(Mp),
+                            np.ascontiguousarray(Gp), np.ascontiguousarray(gm.C_chi, dtype=float), dpsi, par,
+                            bool(gm.summed), levant)
+        return self._kernel
+
     def _initial_state(self) -> list[float]:
         return [0.0, 0.0]  # (v_y, r) of the initial estimate
 
     def _reset_extra(self) -> None:
-        o = self.options
-        self._diff = [CausalDerivative(o["differentiator"], o["lowpass_s"], o["levant_lipschitz"]) for _ in range(3)]
-        self._zeta: np.ndarray | None = None
-        self._eta: np.ndarray | None = None
-        self._psi_m = 0.0
-        self._r_prev, self._t_r_prev = math.nan, math.nan
-        self._t_prev = math.nan
-        self._w_prev: np.ndarray | None = None
-        self._tracking = False
+        n_out = 3 if self.options["output_form"] == "summed" else 9
+        self._ks = UIOKernelState.initial(self._t, 2 * 3 + N_X + self._nmu, n_out, float(self._z[0]),
+                                          float(self._z[1]))
+        self._last = np.array([float(self._z[0]), float(self._z[1]), 0.0])
 
-    def run_compiled(self, t: np.ndarray, Y: np.ndarray, x0: Mapping[str, float] | None = None) -> EstimateTrack:
-        """``run()`` as one compiled loop (:mod:`observers.uio_generalized_loop`), ~4x faster.
+    def _compiled(self, t: np.ndarray, Y: np.ndarray) -> np.ndarray:
+        """Advance through ``t`` (n,) [s], ``Y`` (n, 4) in the shared kernel; the (n, 3) estimates."""
+        Fb, Gb, dbal, Q, Mp, Gp, cchi, dpsi, par, summed, levant = self.kernel_constants()
+        ks = self._ks
+        out = np.empty((t.shape[0], 3))
+        generalized_run(t, Y, Fb, Gb, dbal, Q, Mp, Gp, cchi, dpsi, ks.u, ks.fresh, ks.tl, ks.zeta, ks.eta,
+                        ks.w_prev, ks.dst, ks.state, par, summed, levant, out)
+        if t.shape[0]:
+            self._last = out[-1].copy()
+        return out
 
-        Equal to ``run()`` / stepping :meth:`step` to ~1e-11 of each state's scale, not bit-equal (the
-        loop evaluates the same exact step by a Padé exponential acting on the state vector), which is
-        why ``run()`` still steps the plain-Python reference: the harness promises ``step() == run()``
-        to the bit.
-        """
-        from observers.uio_generalized_loop import run_compiled
-        return run_compiled(self, t, Y, x0)
+    def step(self, t_s: float, y: np.ndarray) -> StepOutput:
+        """One sample through the compiled kernel (the same code ``run()`` loops in, so the same bits)."""
+        x = self._compiled(np.array([float(t_s)]), np.ascontiguousarray(np.asarray(y, dtype=float).reshape(1, 4)))
+        return StepOutput(x[0])
+
+    def run(self, t: np.ndarray, Y: np.ndarray, x0: Mapping[str, float] | None = None) -> EstimateTrack:
+        """Reset at ``t[0]`` and advance through the whole log in one compiled call (equal to stepping)."""
+        t = np.ascontiguousarray(t, dtype=float)
+        Y = np.ascontiguousarray(np.asarray(Y, dtype=float).reshape(len(t), len(self.inputs)))
+        if len(t):
+            self.reset(float(t[0]), x0)
+        return EstimateTrack(self.name, tuple(self.states), t, self._compiled(t, Y))
+
+    def _advance(self, t_s: float, y: list[float]) -> None:
+        self.step(t_s, np.array(y, dtype=float))
+
+    def _values(self) -> list[float]:
+        return self._last.tolist()
 
     # ---- core step (also used with exact derivatives by the tests) ---------------------------------
     def advance_with_derivatives(self, h: float, y: np.ndarray, ydot: np.ndarray, u: np.ndarray, udot: np.ndarray,
                                  v: float) -> None:
         """One UIO step of ``h`` [s] to measurements ``y`` (3,), ``y'`` (3,), ``u = (a, delta)``, ``u'``
-        (2,), at speed ``v`` (clamped into the design range). The first call seeds ``eta``."""
-        Fs, Gws, Q, _, _ = self._consts if self._consts is not None else self.constants()
-        gm = self._gm
-        assert gm is not None
-        ychi = gm.output(y, ydot)
-        w1 = np.concatenate([ychi, u, udot])
-        if self._eta is None or self._w_prev is None or not self._tracking:
-            if self._zeta is None:
-                z = np.zeros(gm.n_zeta)
-                ny = gm.n_y
-                z[:ny], z[ny:2 * ny] = y, ydot
-                z[2 * ny:2 * ny + N_X] = [y[0], self._z[0], y[1], self._z[1]]
-                self._zeta = z
-            self._eta = self._zeta - Q @ ychi
-            self._w_prev = w1
-            self._v_prev = self._vlo if v < self._vlo else (self._vhi if v > self._vhi else v)
-            self._a_prev = float(u[0])
-            self._tracking = True
-            return
-        v = self._vlo if v < self._vlo else (self._vhi if v > self._vhi else v)
-        a = float(u[0])
-        if h > 0.0:
-            # schedule at the step's midpoint (second order in h; the end point leaves O(h v'))
-            vm, am = 0.5 * (v + self._v_prev), 0.5 * (a + self._a_prev)
-            exact_affine_step(self._eta, Fs, Gws, basis(vm, am), self._w_prev, w1, h)
-        self._w_prev = w1
-        self._v_prev, self._a_prev = v, a
-        self._zeta = self._eta + Q @ ychi
+        (2,), at speed ``v`` (clamped into the design range), with the derivatives given instead of
+        differentiated. The first call seeds ``eta``."""
+        Fb, Gb, dbal, Q, _, _, cchi, _, par, summed, _ = self.kernel_constants()
+        ks = self._ks
+        N = ks.zeta.shape[0] + 2
+        uio_update(float(h), np.asarray(y, dtype=float), np.asarray(ydot, dtype=float), float(u[0]), float(u[1]),
+                   float(udot[0]), float(udot[1]), float(v), Fb, Gb, dbal, Q, cchi, ks.zeta, ks.eta, ks.w_prev,
+                   ks.state, par, summed, np.zeros((9, N, N)), np.zeros(N, dtype=np.int64))
 
-    def _advance(self, t_s: float, y: list[float]) -> None:
-        h = self._tick(t_s, y)
-        if self._consts is None:
-            self.constants()
-        vx, r, ax, delta = self._u
-        if vx != vx:
-            return
-        a = ax if ax == ax else 0.0
-        d = delta if delta == delta else 0.0
-        tau = t_s - self._t_prev if self._t_prev == self._t_prev else 0.0
-        self._t_prev = t_s
-        if self._fresh[1]:
-            if self._r_prev == self._r_prev and self._tracking:
-                self._psi_m += 0.5 * (t_s - self._t_r_prev) * (self._r_prev + r)
-            self._r_prev, self._t_r_prev = r, t_s
-        rd = self._diff[0].update(r, tau) if r == r and tau > 0.0 else self._diff[0].value
-        ad = self._diff[1].update(a, tau) if tau > 0.0 else 0.0
-        dd = self._diff[2].update(d, tau) if tau > 0.0 else 0.0
-        tl = self._t_last
-        live = r == r and t_s - min(tl[0], tl[1]) <= self._hold
-        gm = self._gm
-        assert gm is not None
-        k0 = 2 * gm.n_y
-        if not live:
-            if self._zeta is not None and h > 0.0:
-                _, _, _, Mp, Gp = self._consts  # type: ignore[misc]
-                xm = self._zeta[k0:].copy()
-                v = min(max(vx, self._vlo), self._vhi)
-                uu = np.array([a, d])
-                affine_rk4(xm, Mp, Gp, uu, uu, v, 1.0 / v, h, max(1, math.ceil(h * 200.0 / SUBSTEP_RATE)))
-                self._zeta[k0:] = xm
-            self._tracking = False
-            return
-        if not self._tracking and self._zeta is not None:
-            # restart where the model's psi is (the psi output carries delta2 D mu, see uio_nguyen)
-            self._psi_m = float(self._zeta[k0 + 2] + gm.delta2 * (gm.D_bar[k0 + 1] @ self._zeta[k0 + N_X:])
-                                if not gm.summed else self._zeta[k0 + 2])
-        if self._psi_m > math.pi or self._psi_m < -math.pi:
-            c = TWO_PI * round(self._psi_m / TWO_PI)
-            self._psi_m -= c
-            if self._eta is not None and self._w_prev is not None and self._zeta is not None:
-                # psi has a zero column in J: shift every psi slot and the measured psi together
-                shift = np.zeros(gm.n_zeta)
-                shift[1] = shift[k0 + 2] = c
-                wshift = np.zeros_like(self._w_prev)
-                yshift = gm.output(np.array([0.0, c, 0.0]), np.zeros(3))
-                wshift[:yshift.size] = yshift
-                self._zeta -= shift
-                self._w_prev -= wshift
-                self._eta = self._zeta - self._consts[2] @ self._w_prev[:yshift.size]  # type: ignore[index]
-        yv = np.array([vx, self._psi_m, r])
-        ydot = np.array([a, r, rd])
-        self.advance_with_derivatives(h, yv, ydot, np.array([a, d]), np.array([ad, dd]), vx)
-
-    def _values(self) -> list[float]:
-        if self._zeta is None:
-            return [float(self._z[0]), float(self._z[1]), 0.0]
-        k0 = 2 * 3
-        vy, r, vx = float(self._zeta[k0 + 1]), float(self._zeta[k0 + 3]), float(self._zeta[k0])
-        v = self._u[0] if self._u[0] == self._u[0] else vx
-        return [vy, r, math.atan2(vy, v) if v > 0.0 else 0.0]
+    @property
+    def psi_m(self) -> float:
+        """The integrated gyro heading pseudo-output [rad], kept in [-pi, pi]."""
+        return float(self._ks.state[PSI_M])
 
     def zeta_hat(self) -> np.ndarray:
         """Copy of ``zeta_hat = (chi_1, chi_2, x, mu)``: (2 n_y + 4 + n_mu,) array (mu in kN or kN m)."""
-        return np.zeros(0) if self._zeta is None else self._zeta.copy()
+        return self._ks.zeta.copy() if self._ks.state[HAVE_ZETA] else np.zeros(0)
 
     def unknown_input(self) -> np.ndarray:
         """Current unknown-input estimate: ``(f_yf, f_yr)`` [N] or ``(M_z,)`` [N m] (non-scored extra)."""
-        return np.zeros(self._nmu) if self._zeta is None else 1000.0 * self._zeta[2 * 3 + N_X:]
+        if not self._ks.state[HAVE_ZETA]:
+            return np.zeros(self._nmu)
+        return 1000.0 * self._ks.zeta[2 * 3 + N_X:]
 
 
 @register

@@ -1,20 +1,21 @@
-"""Compiled whole-run loop of the generalized UIO (:mod:`observers.uio_generalized`).
+"""The compiled kernel of the generalized UIO (:mod:`observers.uio_generalized`), shared by step() and run().
 
-:func:`generalized_run` is ``GeneralizedUIO._advance`` (latching, causal differentiators, integrated
-gyro and its re-centring, prediction while ``v_x`` / ``r`` are stale, re-seeding, the UIO step) written
-on arrays, so ``GeneralizedUIO.run_compiled()`` follows stepping ``step()`` one sample at a time;
-``step()`` (and ``run()``) stay the plain-Python reference (tested in ``tests/test_observers_uio_compiled.py``).
+:func:`generalized_run` is the whole per-sample update (latching, causal differentiators, integrated
+gyro and its re-centring, prediction while ``v_x`` / ``r`` are stale, re-seeding, the UIO step) on
+arrays carried in a :class:`UIOKernelState`. ``GeneralizedUIO.step()`` calls it with one sample and
+``GeneralizedUIO.run()`` with the whole log, so the two execute the same compiled code on the same
+state and agree bit for bit (``tests/test_observers_uio_compiled.py``); a 550 s log at 100 Hz is one
+call.
 
-The one deliberate difference is how the frozen affine step is integrated. ``step()`` uses
-:func:`observers.uio_generalized.exact_affine_step`: the order-12 Taylor exponential of the
-(n + 2)-square augmented matrix, whose 1-norm reaches ~600 at 100 Hz (``|K|`` ~ 3e4), so it squares
-12 times. Here (:func:`affine_step_pade`) the same exponential is evaluated as Higham's scaling and
-squaring with the [13/13] Padé approximant (N. J. Higham, "The scaling and squaring method for the
-matrix exponential revisited", SIAM J. Matrix Anal. Appl. 26(4), 2005, Table 2.3 / Algorithm 2.3)
-after a fixed diagonal similarity in powers of two (LAPACK balancing of the gain-dominated ``F``, which
-changes no bit of the result's scaling), and only its action on ``(eta, 1, 0)`` is formed: the Padé
-factor is applied ``2^s`` times to the vector instead of squaring the matrix. Both are accurate to
-rounding; the estimates agree with ``step()`` to ~1e-12 relative (asserted at 1e-9).
+Each frozen affine step ``eta' = F eta + G w(t)`` (first-order-held input) is integrated exactly
+(:func:`affine_step_pade`): the exponential of the (n + 2)-square augmented matrix, whose 1-norm
+reaches ~600 at 100 Hz (``|K|`` ~ 3e4), evaluated as Higham's scaling and squaring with the [13/13]
+Padé approximant (N. J. Higham, "The scaling and squaring method for the matrix exponential
+revisited", SIAM J. Matrix Anal. Appl. 26(4), 2005, Table 2.3 / Algorithm 2.3) after a fixed diagonal
+similarity in powers of two (LAPACK balancing of the gain-dominated ``F``, which changes no bit of
+the result's scaling); only its action on ``(eta, 1, 0)`` is formed: the Padé factor is applied
+``2^s`` times to the vector instead of squaring the matrix. Accurate to rounding against scipy's
+``expm`` (asserted at 1e-13 of the state).
 
 numba caches each kernel per source file: after editing this file delete
 ``observers/__pycache__/uio_generalized_loop*.nbi, *.nbc``.
@@ -23,18 +24,12 @@ numba caches each kernel per source file: after editing this file delete
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
 import numpy as np
 
 from harness.tire import jit
 from observers.uio_nguyen import SUBSTEP_RATE, TWO_PI, affine_rk4
-
-if TYPE_CHECKING:
-    from collections.abc import Mapping
-
-    from observers.base import EstimateTrack
-    from observers.uio_generalized import GeneralizedUIO
 
 #: Higham (2005) Table 2.3: largest 1-norm for which the [m/m] Padé approximant is accurate to
 #: double precision after scaling, m = 9 and 13.
@@ -292,28 +287,86 @@ def _output(y: np.ndarray, yd: np.ndarray, cchi: np.ndarray, summed: bool, out: 
             out[i], out[3 + i], out[6 + i] = y[i], cy, y[i]
 
 
+#: Layout of the kernel's scalar state vector ``state`` (see :class:`UIOKernelState`).
+T_CUR, HAVE_ZETA, HAVE_ETA, HAVE_W, TRACKING, PSI_M, R_PREV, T_R_PREV, T_PREV, V_PREV, A_PREV, Z0, Z1 = range(13)
+N_STATE = 13
+
+
+@jit
+def uio_update(h: float, yv: np.ndarray, yd: np.ndarray, a: float, d: float, ad: float, dd: float, vx: float,
+               Fb: np.ndarray, Gb: np.ndarray, dbal: np.ndarray, Q: np.ndarray, cchi: np.ndarray,
+               zeta: np.ndarray, eta: np.ndarray, w_prev: np.ndarray, state: np.ndarray, par: np.ndarray,
+               summed: bool, work: np.ndarray, piv: np.ndarray) -> None:
+    """One UIO step of ``h`` [s] to ``y = yv``, ``y' = yd``, ``u = (a, d)``, ``u' = (ad, dd)`` at speed ``vx``.
+
+    The first call (or the first after a prediction spell) seeds ``eta = zeta - Q y_chi``; later calls
+    integrate the frozen affine ODE exactly (:func:`affine_step_pade`) scheduled at the step's midpoint
+    (second order in ``h``; the end point would leave ``O(h v')``) and set ``zeta = eta + Q y_chi``.
+    """
+    nz = zeta.shape[0]
+    no = Q.shape[1]
+    nw = w_prev.shape[0]
+    ychi = np.empty(no)
+    w1 = np.empty(nw)
+    _output(yv, yd, cchi, summed, ychi)
+    for j in range(no):
+        w1[j] = ychi[j]
+    w1[no], w1[no + 1], w1[no + 2], w1[no + 3] = a, d, ad, dd
+    vc = _clamp(vx, par[0], par[1])
+    if state[HAVE_ETA] == 0.0 or state[HAVE_W] == 0.0 or state[TRACKING] == 0.0:
+        if state[HAVE_ZETA] == 0.0:
+            for j in range(nz):
+                zeta[j] = 0.0
+            for j in range(3):
+                zeta[j] = yv[j]
+                zeta[3 + j] = yd[j]
+            zeta[6], zeta[7], zeta[8], zeta[9] = yv[0], state[Z0], yv[1], state[Z1]
+            state[HAVE_ZETA] = 1.0
+        for p in range(nz):
+            s = 0.0
+            for q in range(no):
+                s += Q[p, q] * ychi[q]
+            eta[p] = zeta[p] - s
+        state[HAVE_ETA] = 1.0
+        for j in range(nw):
+            w_prev[j] = w1[j]
+        state[HAVE_W] = 1.0
+        state[V_PREV], state[A_PREV] = vc, a
+        state[TRACKING] = 1.0
+        return
+    if h > 0.0:
+        vm, am = 0.5 * (vc + state[V_PREV]), 0.5 * (a + state[A_PREV])
+        cb = np.array([1.0, vm, 1.0 / vm, vm * vm, 1.0 / (vm * vm), am, am / (vm * vm)])
+        affine_step_pade(eta, Fb, Gb, cb, w_prev, w1, h, dbal, work, piv)
+    for j in range(nw):
+        w_prev[j] = w1[j]
+    state[V_PREV], state[A_PREV] = vc, a
+    for p in range(nz):
+        s = 0.0
+        for q in range(no):
+            s += Q[p, q] * ychi[q]
+        zeta[p] = eta[p] + s
+
+
 @jit
 def generalized_run(t: np.ndarray, Y: np.ndarray, Fb: np.ndarray, Gb: np.ndarray, dbal: np.ndarray,
                     Q: np.ndarray, Mp: np.ndarray, Gp: np.ndarray, cchi: np.ndarray, dpsi: np.ndarray,
                     u: np.ndarray, fresh: np.ndarray, tl: np.ndarray, zeta: np.ndarray, eta: np.ndarray,
                     w_prev: np.ndarray, dst: np.ndarray, state: np.ndarray, par: np.ndarray, summed: bool,
-                    levant: bool) -> np.ndarray:
-    """``GeneralizedUIO._advance`` over a run; returns the (n, 3) estimates ``(v_y, r, beta)``.
+                    levant: bool, out: np.ndarray) -> None:
+    """The generalized UIO over samples ``t`` (n,) [s], ``Y`` (n, 4); writes ``(v_y, r, beta)`` to ``out`` (n, 3).
 
-    In-place state: ``u``/``fresh``/``tl`` (4,), ``zeta``/``eta`` (n_zeta,), ``w_prev`` (n_out + 4,),
-    ``dst`` (3, 6) differentiators, ``state`` = ``(t_cur, have_zeta, have_eta, have_w, tracking, psi_m,
-    r_prev, t_r_prev, t_prev, v_prev, a_prev, z0, z1)``. ``par`` = ``(v_lo, v_hi, hold_s, T, g0, g1)``.
-    ``dpsi`` (n_mu,) = ``D_bar[k0 + 1]`` (zero for the summed output), ``par[6]`` = ``delta2``.
+    ``step()`` calls it with one sample and ``run()`` with the whole log, so both execute the same
+    compiled code on the same carried state: ``u``/``fresh``/``tl`` (4,) held inputs, whether each is
+    new and its arrival time; ``zeta``/``eta`` (n_zeta,); ``w_prev`` (n_out + 4,) the previous step's
+    input; ``dst`` (3, 6) the differentiators of ``r``, ``a``, ``delta``; ``state`` (``N_STATE``,) the
+    scalars named ``T_CUR`` ... ``Z1`` above. ``par`` = ``(v_lo, v_hi, hold_s, T, g0, g1, delta2)``;
+    ``dpsi`` (n_mu,) = ``D_bar[k0 + 1]`` (zero for the summed output).
     """
     n = t.shape[0]
     nz = zeta.shape[0]
     no = Q.shape[1]
-    nw = w_prev.shape[0]
     k0 = 6
-    out = np.empty((n, 3))
-    t_cur = state[0]
-    have_zeta, have_eta, have_w, tracking = state[1] != 0.0, state[2] != 0.0, state[3] != 0.0, state[4] != 0.0
-    psi_m, r_prev, t_r_prev, t_prev, v_prev, a_prev = state[5], state[6], state[7], state[8], state[9], state[10]
     vlo, vhi, hold = par[0], par[1], par[2]
     dpar = par[3:6]
     N = nz + 2
@@ -321,13 +374,12 @@ def generalized_run(t: np.ndarray, Y: np.ndarray, Fb: np.ndarray, Gb: np.ndarray
     piv = np.zeros(N, dtype=np.int64)
     yv = np.empty(3)
     yd = np.empty(3)
-    ychi = np.empty(no)
-    w1 = np.empty(nw)
     uu = np.empty(2)
     nxm = Mp.shape[1]
     xm = np.empty(nxm)
     for i in range(n):
         ts = t[i]
+        # ScalarLoopObserver._tick: latch new samples (NaN = none), step since the last advance
         for j in range(4):
             v = Y[i, j]
             if v == v:
@@ -336,27 +388,29 @@ def generalized_run(t: np.ndarray, Y: np.ndarray, Fb: np.ndarray, Gb: np.ndarray
                 tl[j] = ts
             else:
                 fresh[j] = False
-        h = ts - t_cur
+        h = ts - state[T_CUR]
         if h > 0.0:
-            t_cur = ts
+            state[T_CUR] = ts
         else:
             h = 0.0
         vx, r, ax, delta = u[0], u[1], u[2], u[3]
         if vx == vx:
             a = ax if ax == ax else 0.0
             d = delta if delta == delta else 0.0
-            tau = ts - t_prev if t_prev == t_prev else 0.0
-            t_prev = ts
+            tau = ts - state[T_PREV] if state[T_PREV] == state[T_PREV] else 0.0
+            state[T_PREV] = ts
             if fresh[1]:
-                if r_prev == r_prev and tracking:
-                    psi_m += 0.5 * (ts - t_r_prev) * (r_prev + r)
-                r_prev, t_r_prev = r, ts
+                # psi_m: the integrated gyro (trapezoid between gyro samples) while tracking
+                if state[R_PREV] == state[R_PREV] and state[TRACKING] != 0.0:
+                    state[PSI_M] += 0.5 * (ts - state[T_R_PREV]) * (state[R_PREV] + r)
+                state[R_PREV], state[T_R_PREV] = r, ts
             rd = _derivative(r, tau, 0, dst, dpar, levant) if r == r and tau > 0.0 else dst[0, 0]
             ad = _derivative(a, tau, 1, dst, dpar, levant) if tau > 0.0 else 0.0
             dd = _derivative(d, tau, 2, dst, dpar, levant) if tau > 0.0 else 0.0
             live = r == r and ts - min(tl[0], tl[1]) <= hold
             if not live:
-                if have_zeta and h > 0.0:
+                # v_x or r stale: the model x' = A x + B_u u + B_mu mu_hat predicts with mu_hat held
+                if state[HAVE_ZETA] != 0.0 and h > 0.0:
                     for j in range(nxm):
                         xm[j] = zeta[k0 + j]
                     vc = min(max(vx, vlo), vhi)
@@ -364,17 +418,20 @@ def generalized_run(t: np.ndarray, Y: np.ndarray, Fb: np.ndarray, Gb: np.ndarray
                     affine_rk4(xm, Mp, Gp, uu, uu, vc, 1.0 / vc, h, max(1, math.ceil(h * 200.0 / SUBSTEP_RATE)))
                     for j in range(nxm):
                         zeta[k0 + j] = xm[j]
-                tracking = False
+                state[TRACKING] = 0.0
             else:
-                if not tracking and have_zeta:
+                if state[TRACKING] == 0.0 and state[HAVE_ZETA] != 0.0:
+                    # restart where the model's psi is (the psi output carries delta2 D mu, see uio_nguyen)
                     s = 0.0
                     for j in range(dpsi.shape[0]):
                         s += dpsi[j] * zeta[k0 + 4 + j]
-                    psi_m = zeta[k0 + 2] + par[6] * s
+                    state[PSI_M] = zeta[k0 + 2] + par[6] * s
+                psi_m = state[PSI_M]
                 if psi_m > math.pi or psi_m < -math.pi:
                     c = TWO_PI * round(psi_m / TWO_PI)
-                    psi_m -= c
-                    if have_eta and have_w and have_zeta:
+                    state[PSI_M] = psi_m - c
+                    if state[HAVE_ETA] != 0.0 and state[HAVE_W] != 0.0 and state[HAVE_ZETA] != 0.0:
+                        # psi has a zero column in J: shift every psi slot and the measured psi together
                         zeta[1] -= c
                         zeta[k0 + 2] -= c
                         if summed:
@@ -387,62 +444,18 @@ def generalized_run(t: np.ndarray, Y: np.ndarray, Fb: np.ndarray, Gb: np.ndarray
                             for q in range(no):
                                 s += Q[p, q] * w_prev[q]
                             eta[p] = zeta[p] - s
-                # advance_with_derivatives(h, (vx, psi_m, r), (a, r, rd), (a, d), (ad, dd), vx)
-                yv[0], yv[1], yv[2] = vx, psi_m, r
+                yv[0], yv[1], yv[2] = vx, state[PSI_M], r
                 yd[0], yd[1], yd[2] = a, r, rd
-                _output(yv, yd, cchi, summed, ychi)
-                for j in range(no):
-                    w1[j] = ychi[j]
-                w1[no], w1[no + 1], w1[no + 2], w1[no + 3] = a, d, ad, dd
-                vc = _clamp(vx, vlo, vhi)
-                if not have_eta or not have_w or not tracking:
-                    if not have_zeta:
-                        for j in range(nz):
-                            zeta[j] = 0.0
-                        for j in range(3):
-                            zeta[j] = yv[j]
-                            zeta[3 + j] = yd[j]
-                        zeta[6], zeta[7], zeta[8], zeta[9] = yv[0], state[11], yv[1], state[12]
-                        have_zeta = True
-                    for p in range(nz):
-                        s = 0.0
-                        for q in range(no):
-                            s += Q[p, q] * ychi[q]
-                        eta[p] = zeta[p] - s
-                    have_eta = True
-                    for j in range(nw):
-                        w_prev[j] = w1[j]
-                    have_w = True
-                    v_prev, a_prev = vc, a
-                    tracking = True
-                else:
-                    if h > 0.0:
-                        vm, am = 0.5 * (vc + v_prev), 0.5 * (a + a_prev)
-                        cb = np.array([1.0, vm, 1.0 / vm, vm * vm, 1.0 / (vm * vm), am, am / (vm * vm)])
-                        affine_step_pade(eta, Fb, Gb, cb, w_prev, w1, h, dbal, work, piv)
-                    for j in range(nw):
-                        w_prev[j] = w1[j]
-                    v_prev, a_prev = vc, a
-                    for p in range(nz):
-                        s = 0.0
-                        for q in range(no):
-                            s += Q[p, q] * ychi[q]
-                        zeta[p] = eta[p] + s
-        # _values
-        if not have_zeta:
-            out[i, 0], out[i, 1], out[i, 2] = state[11], state[12], 0.0
+                uio_update(h, yv, yd, a, d, ad, dd, vx, Fb, Gb, dbal, Q, cchi, zeta, eta, w_prev, state, par,
+                           summed, work, piv)
+        # the estimate (v_y, r, beta); before the first seed the initial state
+        if state[HAVE_ZETA] == 0.0:
+            out[i, 0], out[i, 1], out[i, 2] = state[Z0], state[Z1], 0.0
         else:
             vy, rr = zeta[k0 + 1], zeta[k0 + 3]
             v = u[0] if u[0] == u[0] else zeta[k0]
             out[i, 0], out[i, 1] = vy, rr
             out[i, 2] = math.atan2(vy, v) if v > 0.0 else 0.0
-    state[0] = t_cur
-    state[1] = 1.0 if have_zeta else 0.0
-    state[2] = 1.0 if have_eta else 0.0
-    state[3] = 1.0 if have_w else 0.0
-    state[4] = 1.0 if tracking else 0.0
-    state[5], state[6], state[7], state[8], state[9], state[10] = psi_m, r_prev, t_r_prev, t_prev, v_prev, a_prev
-    return out
 
 
 def balanced_constants(Fs: np.ndarray, Gws: np.ndarray, v_mid: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -458,55 +471,32 @@ def balanced_constants(Fs: np.ndarray, Gws: np.ndarray, v_mid: float) -> tuple[n
     return Fb, Gb, d
 
 
-def run_compiled(obs: GeneralizedUIO, t: np.ndarray, Y: np.ndarray,
-                 x0: Mapping[str, float] | None) -> EstimateTrack:
-    """``obs.run`` through :func:`generalized_run`; leaves ``obs`` in the state stepping leaves it in."""
-    from observers.base import EstimateTrack
-    from observers.levant_differentiator import levant_gains
+@dataclass
+class UIOKernelState:
+    """The state :func:`generalized_run` carries between calls (arrays updated in place).
 
-    t = np.ascontiguousarray(t, dtype=float)
-    Y = np.ascontiguousarray(np.asarray(Y, dtype=float).reshape(len(t), len(obs.inputs)))
-    if len(t) == 0:
-        return EstimateTrack(obs.name, tuple(obs.states), t, np.zeros((0, len(obs.states))))
-    obs.reset(float(t[0]), x0)
-    Fs, Gws, Q, Mp, Gp = obs.constants()  # a failed design raises here, as on the first step()
-    gm = obs.generalized_model()
-    bal = obs._balanced
-    if bal is None:
-        bal = obs._balanced = balanced_constants(Fs, Gws, 0.5 * (obs._vlo + obs._vhi))
-    Fb, Gb, dbal = bal
-    o = obs.options
-    levant = o["differentiator"] == "levant"
-    g0, g1 = (levant_gains(1, float(o["levant_lipschitz"])) if levant else (0.0, 0.0))
-    par = np.array([obs._vlo, obs._vhi, obs._hold, float(o["lowpass_s"]), g0, g1, gm.delta2])
-    k0 = 2 * gm.n_y
-    dpsi = np.zeros(gm.n_mu) if gm.summed else np.ascontiguousarray(gm.D_bar[k0 + 1], dtype=float)
-    nz, no = gm.n_zeta, Q.shape[1]
-    zeta, eta, w_prev = np.zeros(nz), np.zeros(nz), np.zeros(no + 4)
-    dst = np.zeros((3, 6))
-    dst[:, 1] = math.nan
-    u = np.array(obs._u, dtype=float)
-    fresh = np.array(obs._fresh, dtype=np.bool_)
-    tl = np.array(obs._t_last, dtype=float)
-    state = np.array([obs._t, 0.0, 0.0, 0.0, 0.0, obs._psi_m, obs._r_prev, obs._t_r_prev, obs._t_prev,
-                      0.0, 0.0, float(obs._z[0]), float(obs._z[1])])
-    X = generalized_run(t, Y, Fb, Gb, dbal, np.ascontiguousarray(Q), np.ascontiguousarray(Mp),
-                        np.ascontiguousarray(Gp), np.ascontiguousarray(gm.C_chi, dtype=float), dpsi, u, fresh, tl,
-                        zeta, eta, w_prev, dst, state, par, gm.summed, levant)
-    # leave the observer where stepping would have left it
-    obs._u, obs._fresh, obs._t_last = u.tolist(), fresh.tolist(), tl.tolist()
-    obs._t = float(state[0])
-    obs._zeta = zeta if state[1] else None
-    obs._eta = eta if state[2] else None
-    obs._w_prev = w_prev if state[3] else None
-    obs._tracking = bool(state[4])
-    obs._psi_m, obs._r_prev, obs._t_r_prev, obs._t_prev = (float(x) for x in state[5:9])
-    if state[2]:
-        obs._v_prev, obs._a_prev = float(state[9]), float(state[10])
-    for k, diff in enumerate(obs._diff):
-        diff.value, diff._prev = float(dst[k, 0]), float(dst[k, 1])
-        if diff._lev is not None:
-            diff._lev.z = [float(dst[k, 2]), float(dst[k, 3])]
-            diff._lev.initialized = bool(dst[k, 4])
-            diff._lev._f_prev = float(dst[k, 5])
-    return EstimateTrack(obs.name, tuple(obs.states), t, X)
+    ``u``/``tl`` (4,) held inputs and their arrival times [s], ``fresh`` (4,) bool; ``zeta``/``eta``
+    (n_zeta,); ``w_prev`` (n_out + 4,); ``dst`` (3, 6) differentiator states ``(value, prev, z0, z1,
+    initialized, f_prev)``; ``state`` (``N_STATE``,) scalars, flags as 0.0 / 1.0.
+    """
+
+    u: np.ndarray
+    fresh: np.ndarray
+    tl: np.ndarray
+    zeta: np.ndarray
+    eta: np.ndarray
+    w_prev: np.ndarray
+    dst: np.ndarray
+    state: np.ndarray
+
+    @classmethod
+    def initial(cls, t0_s: float, n_zeta: int, n_out: int, z0: float, z1: float) -> UIOKernelState:
+        """State after ``reset(t0_s)`` with initial ``(v_y, r) = (z0, z1)``: nothing latched, nothing seeded."""
+        state = np.zeros(N_STATE)
+        state[T_CUR] = t0_s
+        state[R_PREV] = state[T_R_PREV] = state[T_PREV] = math.nan
+        state[Z0], state[Z1] = z0, z1
+        dst = np.zeros((3, 6))
+        dst[:, 1] = math.nan
+        return cls(np.full(4, math.nan), np.zeros(4, dtype=np.bool_), np.full(4, -math.inf), np.zeros(n_zeta),
+                   np.zeros(n_zeta), np.zeros(n_out + 4), dst, state)

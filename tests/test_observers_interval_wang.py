@@ -204,6 +204,51 @@ def test_outage_and_speed_outside_the_domain_fall_back_to_the_bracket() -> None:
     np.testing.assert_allclose(s.hi[:, :2], 0.2, atol=1e-12)
 
 
+@pytest.mark.parametrize("name", ["interval_wang", "interval_wang_printed"])
+def test_run_is_one_compiled_call_and_equals_stepping_bit_for_bit(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """run() advances the whole log in one call of the compiled kernel that step() calls per sample, so
+    estimates and bounds are the same bits: through dropouts, an outage past hold_s (fallback to the
+    bracket and restart), a speed below the design range, a repeated and an irregular time stamp and
+    an initial state."""
+    import observers.interval_wang as module
+
+    v = load_vehicle("sedan")
+    probe = create(name, v)
+    t, Y, _, _, _, _ = _own_model(v, *_stiffness_cases((probe.cf_range, probe.cr_range)), T=5.0)
+    Yc = Y[4].copy()
+    gen = np.random.default_rng(3)
+    Yc[:3] = np.nan
+    Yc[gen.random(Yc.shape) < 0.2] = np.nan
+    Yc[200:260, 1:3] = np.nan        # 0.6 s without r and v_x
+    Yc[300:320, 2] = 3.0             # below the design speed range
+    t = t.copy()
+    t[150] = t[149]                  # repeated time stamp
+    t[350:] += 0.0041                # irregular step
+    calls: list[int] = []
+    kernel = module.interval_run
+
+    def counted(tt: np.ndarray, *args: object) -> None:
+        calls.append(len(tt))
+        kernel(tt, *args)
+
+    for x0 in (None, {"alpha_f_rad": 0.01}):
+        monkeypatch.setattr(module, "interval_run", counted)
+        calls.clear()
+        obs = create(name, v)
+        tr = obs.run(t, Yc, x0)
+        assert calls == [len(t)]   # one compiled call for the whole run
+        monkeypatch.undo()
+        ref = create(name, v)
+        ref.reset(float(t[0]), x0)
+        outs = [ref.step(float(t[i]), Yc[i]) for i in range(len(t))]
+        for got, key in ((tr.x, "x"), (tr.lo, "lo"), (tr.hi, "hi")):
+            want = np.array([getattr(o, key) for o in outs])
+            assert got is not None and got.tobytes() == want.tobytes(), key
+        assert np.all(np.isfinite(tr.x)) and np.ptp(tr.hi[:, 0] - tr.lo[:, 0]) > 0.1  # fell back and narrowed
+        nxt, nref = obs.step(float(t[-1]) + 0.01, Yc[-1]), ref.step(float(t[-1]) + 0.01, Yc[-1])
+        assert nxt.x.tobytes() == nref.x.tobytes() and nxt.lo.tobytes() == nref.lo.tobytes()
+
+
 def test_bad_options_are_input_errors() -> None:
     v = load_vehicle("sedan")
     with pytest.raises(InputError, match="contain"):

@@ -11,10 +11,11 @@ from scipy.integrate import solve_ivp
 
 from harness.errors import InputError
 from harness.vehicle import load_vehicle
+from observers.levant_differentiator import levant_gains
 from observers.lmi import DesignStatus, SolverSettings
 from observers.registry import create
-from observers.uio_generalized import CausalDerivative, exact_affine_step
 from observers.uio_generalized_design import design, generalized_model, rank_condition, unknown_input_matrix
+from observers.uio_generalized_loop import _derivative, affine_step_pade
 from observers.uio_nguyen_design import D_REG, vehicle_model
 
 SEDAN = load_vehicle("sedan")
@@ -169,20 +170,24 @@ def test_regularized_variant_is_certified_and_bounded_on_the_design_model() -> N
 
 def test_kernel_and_differentiators() -> None:
     rng = np.random.default_rng(4)
-    Fs, Gs = rng.normal(size=(7, 5, 5)) * 0.3, rng.normal(size=(7, 5, 3))
-    c, w0, w1, z = rng.normal(size=7), rng.normal(size=3), rng.normal(size=3), rng.normal(size=5)
+    n, m = 5, 3
+    Fs, Gs = rng.normal(size=(7, n, n)) * 0.3, rng.normal(size=(7, n, m))
+    c, w0, w1, z = rng.normal(size=7), rng.normal(size=m), rng.normal(size=m), rng.normal(size=n)
     a = z.copy()
-    exact_affine_step(a, Fs, Gs, c, w0, w1, 0.05)
+    work, piv = np.zeros((9, n + 2, n + 2)), np.zeros(n + 2, dtype=np.int64)
+    affine_step_pade(a, Fs, Gs, c, w0, w1, 0.05, np.ones(n), work, piv)
     F, G = np.tensordot(c, Fs, axes=1), np.tensordot(c, Gs, axes=1)
     ref = solve_ivp(lambda s, x: F @ x + G @ (w0 + s / 0.05 * (w1 - w0)), (0, 0.05), z, rtol=1e-12, atol=1e-14).y[:, -1]
     np.testing.assert_allclose(a, ref, rtol=1e-9, atol=1e-11)
     # causal: the derivative at t depends only on samples up to t (a later change does not move it)
     tt = np.arange(0, 2, 0.01)
-    for kind in ("fd_lowpass", "levant"):
-        d1, d2 = CausalDerivative(kind, 0.02, 20.0), CausalDerivative(kind, 0.02, 20.0)
+    par = np.array([0.02, *levant_gains(1, 20.0)])
+    for levant in (False, True):
+        d1, d2 = np.zeros((3, 6)), np.zeros((3, 6))
+        d1[:, 1] = d2[:, 1] = np.nan
         s1, s2 = np.sin(3 * tt), np.sin(3 * tt) + (tt > 1.5)
-        v1 = [d1.update(x, 0.01) for x in s1]
-        v2 = [d2.update(x, 0.01) for x in s2]
+        v1 = [_derivative(x, 0.01, 0, d1, par, levant) for x in s1]
+        v2 = [_derivative(x, 0.01, 0, d2, par, levant) for x in s2]
         assert np.array_equal(np.array(v1)[tt < 1.5], np.array(v2)[tt < 1.5])
         assert abs(v1[150] - 3 * math.cos(3 * tt[150])) < 0.3
     with pytest.raises(InputError):
