@@ -137,6 +137,8 @@ def main() -> None:
     if left_out:
         print("left out (not ok in the warm-up): " + ", ".join(left_out))
     _report("observer", [float(c) for c in counts], {float(c): stage[c] for c in counts})
+    print("(the observers differ in cost, so the per-observer figures follow which ones have joined; the "
+          "like-for-like test of growth is the stage time over the sum of its members' own times)")
     own = np.cumsum([statistics.median(alone[n]) for n in names])
     print("stage time / sum of its observers' own times: "
           + ", ".join(f"{c}: {statistics.median(stage[c]) / own[c - 1]:.2f}" for c in counts))

@@ -258,6 +258,9 @@ def test_stepped_model_has_no_scenario_visuals_and_the_render_model_poses_from_t
     for name in ("chassis", "wheel_fl", "wheel_rr", "knuckle_fr"):
         assert np.array_equal(dr.xpos[render.body(name).id], ds.xpos[stepped.body(name).id])
     assert abs(ds.xpos[stepped.body("chassis").id, 0] - truth.frame.x_m.iloc[-1]) < 1e-9
+    from harness.render import RenderSource
+
+    assert RenderSource.from_truth(truth).model_xml == truth.render_xml  # what a run's renders draw
 
 
 def test_an_edited_vehicle_file_is_read_again(tmp_path) -> None:
