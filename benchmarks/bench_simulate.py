@@ -34,6 +34,7 @@ import os
 import statistics
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import mujoco
@@ -41,7 +42,9 @@ import numpy as np
 
 import harness.simulate as sim
 from harness.car_model import build_mjcf
-from harness.scenario import load_scenario
+from harness.errors import ScenarioError
+from harness.scenario import load_scenario, parse_scenario, scenarios_dir
+from harness.strict_yaml import load_mapping
 from harness.vehicle import load_vehicle
 
 
@@ -159,7 +162,14 @@ def main() -> None:
     ap.add_argument("--scenario", default="curvy_road")
     args = ap.parse_args()
 
-    sc = dataclasses.replace(load_scenario(args.scenario), duration_s=args.seconds)
+    # Parsed with the new duration, so that its road (and its lane markings) covers the whole run.
+    load_scenario(args.scenario)  # an unknown name or a bad file fails here with its own message
+    path = Path(args.scenario)
+    if path.suffix.lower() not in (".yaml", ".yml"):
+        path = scenarios_dir() / f"{args.scenario}.yaml"
+    data = load_mapping(path, ScenarioError)
+    data["duration_s"] = args.seconds
+    sc = parse_scenario(data, str(path))
     n = int(round(args.seconds / 0.001)) + 1  # simulate() steps t = 0 .. duration inclusive
     sim.simulate(dataclasses.replace(sc, duration_s=0.05))  # compile / load the numba cache
     rec = _record(sc, n)
