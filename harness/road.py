@@ -37,12 +37,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
-from scipy.spatial import cKDTree
 
 from harness.road_profile import COL_Z, RoadProfile, profile_at, profile_np
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 SEGMENT_KINDS = ("straight", "arc", "clothoid")
 
@@ -218,6 +221,10 @@ _TREES: dict[int, tuple[np.ndarray, cKDTree]] = {}
 
 
 def _tree_of(road: Road) -> cKDTree:
+    # Imported here: only a projection without a path hint needs it, and scipy.spatial costs
+    # a few tenths of a second at import (``roadtruth simulate`` never needs it).
+    from scipy.spatial import cKDTree
+
     key = id(road.samples)
     hit = _TREES.get(key)
     if hit is None or hit[0] is not road.samples:

@@ -21,7 +21,6 @@ from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
-from scipy.optimize import least_squares
 
 #: Fit ranges: slip angle [rad] and slip ratio [1].
 ALPHA_FIT_MAX_RAD = math.radians(15.0)
@@ -67,6 +66,10 @@ def _fit_one(curve: Callable[[np.ndarray], np.ndarray], s_max: float, fz: float)
     def residual(p: np.ndarray) -> np.ndarray:
         C, E = p
         return (_magic_formula(s, slope / (C * D), C, D, E) - f) / peak
+
+    # Imported here: only vehicles on a tire file or Fiala tires are fitted, and scipy.optimize
+    # costs about 0.3 s at import on every simulate otherwise.
+    from scipy.optimize import least_squares
 
     sol = least_squares(residual, x0=np.array([1.5, 0.0]), bounds=([C_BOUNDS[0], E_BOUNDS[0]], [C_BOUNDS[1], E_BOUNDS[1]]),
                         method="trf", xtol=1e-12, ftol=1e-12, gtol=1e-12)

@@ -65,7 +65,8 @@ def test_scenario_listing_gives_the_rows_of_a_full_load() -> None:
                      "vehicle": s.vehicle, "duration_s": s.duration_s, "initial_speed_mps": s.initial_speed_mps}
 
 
-HEAVY = ("numba", "mujoco", "cvxpy", "plotly", "dask", "jinja2", "scipy.signal")
+HEAVY = ("numba", "mujoco", "cvxpy", "plotly", "dask", "jinja2", "scipy.signal", "scipy.optimize", "scipy.spatial",
+         "scipy.interpolate")
 
 
 def _loaded_after(code: str) -> list[str]:
@@ -85,9 +86,11 @@ def test_scenarios_command_imports_none_of_the_compiled_or_report_stack() -> Non
 
 
 def test_simulate_path_imports_neither_the_report_builder_nor_scipy_signal() -> None:
-    """`roadtruth simulate` writes tables and JSON: no page builder (jinja2, plotly), no scipy.signal."""
-    loaded = _loaded_after("import harness.pipeline, harness.sensors, harness.table_io")
-    assert not {"jinja2", "plotly", "scipy.signal"} & set(loaded), loaded
+    """`roadtruth simulate` of a flat road on Magic Formula tires writes tables and JSON: no page
+    builder (jinja2, plotly), none of scipy's signal, optimize (tire-file fits), spatial (projection
+    without a path hint) or interpolate (road profiles) subpackages."""
+    loaded = _loaded_after("import harness.pipeline, harness.sensors, harness.simulate, harness.table_io")
+    assert not {"jinja2", "plotly", "scipy.signal", "scipy.optimize", "scipy.spatial", "scipy.interpolate"} & set(loaded), loaded
 
 
 def test_quick_exit_runs_atexit_handlers_and_flushes_before_leaving() -> None:
