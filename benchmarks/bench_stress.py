@@ -1,53 +1,75 @@
-"""Cost of ``roadtruth stress`` sweeps: wall time and cases per second, in-process, with worker
-processes and on a local Dask cluster (the figures of docs/STRESS.md, "Cost").
+"""Cost of ``roadtruth stress`` sweeps: one worker against two, and a Dask cluster against local
+processes (the figures of docs/STRESS.md, "Cost").
 
-Run: ``python benchmarks/bench_stress.py [--skip-dask]``. Two sweeps, base seed 0 (timings are
-measurements: run on a quiet machine; the first sweep warms the numba and design caches, and every
-sweep recomputes its cases instead of reading the stress case cache):
-
-* ``step_steer`` with ``kf_bicycle,lpv_wang``, μ ∈ {1.0, 0.6, 0.3, ice} × 3 seeds = 12 cases, in-process;
-* ``sine_with_dwell`` with every registered observer, μ ∈ {1.0, 0.6, 0.3} × faults {none, gnss dropout}
-  × 5 seeds = 30 cases: in-process, ``--jobs 2`` and ``--dask local --jobs 2``.
+Run: ``python benchmarks/bench_stress.py [--repeats N] [--seeds N] [--skip-dask]``. The sweep is
+``step_steer`` with ``kf_bicycle,lpv_wang``, μ ∈ {1.0, 0.6, 0.3, ice} × faults {none, gnss dropout}
+× 12 seeds = 96 cases, base seed 0, ``--fresh`` (every case computed, none read from the case
+cache). Each measurement is the wall time of the whole command in a fresh interpreter (imports,
+worker start-up and writing included: what a user waits for), after one unmeasured warm-up sweep
+(design and numba caches warm). The executors alternate, so a change of machine load hits each;
+printed: best-of-N and median per executor, the speed-up of ``--jobs 2`` over ``--jobs 1`` and the
+ratio of ``--dask local --jobs 2`` (a real LocalCluster on loopback) to ``--jobs 2``, with the load
+average before and after. Ratios of two workers can only be judged with both cores free.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+ROOT = Path(__file__).resolve().parents[1]
+#: The source tree the commands run from (``--root``: e.g. an older checkout, for a before/after).
+ROOT_DIR = [ROOT]
+SWEEP = ["--scenario", "step_steer", "--observer", "kf_bicycle,lpv_wang", "--friction", "1.0,0.6,0.3,ice",
+         "--faults", "none;gnss:dropout=0.2", "--seed", "0", "--fresh"]
 
 
-def timed(label: str, n_cases: int, **kw: object) -> None:
-    from harness.stress import run_stress
-
-    with tempfile.TemporaryDirectory(prefix="bench-stress-") as tmp:
-        t = time.perf_counter()
-        # fresh: recompute every case (the case cache would otherwise serve a repeated sweep)
-        run_stress(out=Path(tmp) / "s", progress=False, base_seed=0, fresh=True, **kw)  # type: ignore[arg-type]
-        wall = time.perf_counter() - t
-    print(f"{label:56s} {n_cases:3d} cases  {wall:6.1f} s  {n_cases / wall:5.1f} cases/s  "
-          f"{wall / n_cases:5.2f} s/case")
+def sweep_once(label: str, extra: list[str], seeds: int, out: Path) -> float:
+    """Wall time [s] of one ``roadtruth stress`` of the benchmark sweep with ``extra`` options."""
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    cmd = [sys.executable, "-m", "harness.cli", "stress", *SWEEP, "--seeds", str(seeds), *extra,
+           "--out", str(out / f"{label}-{time.monotonic_ns()}")]
+    t = time.perf_counter()
+    subprocess.run(cmd, cwd=ROOT_DIR[0], env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return time.perf_counter() - t
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--skip-dask", action="store_true", help="skip the Dask LocalCluster sweep")
+    p.add_argument("--repeats", type=int, default=3, help="measured sweeps per executor (default 3)")
+    p.add_argument("--seeds", type=int, default=12, help="seeds per (friction, faults): 8 x this cases (default 12)")
+    p.add_argument("--skip-dask", action="store_true", help="skip the Dask LocalCluster sweeps")
+    p.add_argument("--root", type=Path, default=ROOT, help="source tree to run (default: this checkout)")
     a = p.parse_args()
-    print(f"cores: {os.cpu_count()}, load average before: {os.getloadavg()[0]:.2f}")
-    small = {"scenarios": ["step_steer"], "observers": ["kf_bicycle", "lpv_wang"],
-             "frictions": ["1.0", "0.6", "0.3", "ice"], "faults": ["none"], "seeds": 3}
-    timed("(warm-up) step_steer, 2 observers, in-process", 12, **small)
-    timed("step_steer, kf_bicycle + lpv_wang, in-process", 12, **small)
-    big = {"scenarios": ["sine_with_dwell"], "observers": None, "frictions": ["1.0", "0.6", "0.3"],
-           "faults": ["none", "gnss:dropout=0.2"], "seeds": 5}
-    timed("sine_with_dwell, every observer, in-process", 30, **big)
-    timed("sine_with_dwell, every observer, --jobs 2", 30, jobs=2, **big)
+    ROOT_DIR[0] = a.root.resolve()
+    n = 8 * a.seeds
+    executors = {"--jobs 1": ["--jobs", "1"], "--jobs 2": ["--jobs", "2"]}
     if not a.skip_dask:
-        timed("sine_with_dwell, every observer, --dask local --jobs 2", 30, jobs=2, dask="local", **big)
+        executors["--dask local --jobs 2"] = ["--dask", "local", "--jobs", "2"]
+    print(f"cores: {os.cpu_count()}, load average before: {os.getloadavg()[0]:.2f}; {n} cases per sweep")
+    times: dict[str, list[float]] = {k: [] for k in executors}
+    with tempfile.TemporaryDirectory(prefix="bench-stress-") as tmp:
+        sweep_once("warm-up", ["--jobs", "2"], a.seeds, Path(tmp))
+        for _ in range(a.repeats):
+            for label, extra in executors.items():
+                times[label].append(sweep_once(label.replace(" ", ""), extra, a.seeds, Path(tmp)))
+    for label, ts in times.items():
+        print(f"stress {label:24s} best {min(ts):6.2f} s  median {statistics.median(ts):6.2f} s  "
+              f"{n / min(ts):5.1f} cases/s  ({', '.join(f'{t:.2f}' for t in ts)})")
+
+    def ratio(num: str, den: str) -> str:
+        return (f"best {min(times[num]) / min(times[den]):.2f}x  "
+                f"median {statistics.median(times[num]) / statistics.median(times[den]):.2f}x")
+
+    print(f"speed-up --jobs 2 over --jobs 1 (time 1 / time 2): {ratio('--jobs 1', '--jobs 2')}")
+    if not a.skip_dask:
+        print(f"--dask local --jobs 2 over --jobs 2 (time / time): {ratio('--dask local --jobs 2', '--jobs 2')}")
     print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 

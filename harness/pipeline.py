@@ -404,6 +404,12 @@ def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress) -> Iter
     """
     if jobs > 1 and len(tasks) > 1:
         with process_pool(run_scenario, min(jobs, len(tasks))) as pool:
+            from harness.disk_cache import DesignWarmup, presolve_designs
+
+            pool.start_workers()  # one solves the designs every worker needs, once; the others start meanwhile
+            presolve_designs(pool.submit_call, DesignWarmup.of(
+                [(t.name, t.vehicle, t.friction) for t in tasks], [o for t in tasks for o in t.observers],
+                tasks[0].observer_options, tasks[0].observer_timeout_s))
             futures = {pool.submit(task): task for task in tasks}
             for fut in as_completed(futures):
                 try:

@@ -25,6 +25,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import math  # noqa: E402
 import time  # noqa: E402
 import traceback  # noqa: E402
+import uuid  # noqa: E402
 from collections.abc import Iterator  # noqa: E402
 from concurrent.futures import as_completed  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
@@ -146,6 +147,8 @@ class StressCase:
     observer_timeout_s: float | None = None  # per-observer budget [s]; None = scaled with the duration
     # Checked observer options (harness/observer_options.py): observer -> {option: value}; in the cache key.
     observer_options: dict[str, dict[str, Any]] | None = None
+    # Names the sweep the case belongs to: a worker reuses prepared scenarios within one sweep only.
+    sweep: str = ""
 
 
 @dataclass(frozen=True)
@@ -168,25 +171,44 @@ def _peak(frame: pd.DataFrame, column: str) -> float:
     return float(np.nanmax(np.abs(frame[column].to_numpy(float))))
 
 
+#: (sweep, scenario, friction) -> (prepared scenario, its μ label, its vehicle), in this process.
+#: Loading a scenario with its vehicle parses two YAML files and validates them, about a fifth of a
+#: short case; every seed and fault of a (scenario, friction) shares them. Both are frozen
+#: dataclasses, and only the current sweep's are kept, so a file edited between sweeps is re-read.
+_PREPARED: dict[tuple[str, str, str], tuple[Any, float, Any]] = {}
+
+
+def _prepared(case: StressCase) -> tuple[Any, float, Any]:
+    """The case's prepared scenario, μ label and vehicle, loaded once per sweep and process."""
+    from harness.pipeline import prepare_scenario
+
+    key = (case.sweep, case.scenario, case.friction)
+    hit = _PREPARED.get(key)
+    if hit is None:
+        if any(k[0] != case.sweep for k in _PREPARED):
+            _PREPARED.clear()
+        sc = prepare_scenario(case.scenario, None, None if case.friction == SCENARIO_FRICTION else case.friction)
+        hit = _PREPARED[key] = (sc, _mu_label(sc), sc.vehicle_params())
+    return hit
+
+
+def run_cases(cases: list[StressCase]) -> list[CaseResult]:
+    """:func:`run_case` of each case, in order: one task of a Dask sweep holds several cases, so
+    scheduling costs once per batch and the worker's prepared scenarios serve the whole batch."""
+    return [run_case(c) for c in cases]
+
+
 def run_case(case: StressCase) -> CaseResult:
     """Simulate, sense, estimate and score one case; never raises (a crash becomes ``error: …`` rows).
 
     The stages are :func:`harness.pipeline.evaluate_scenario`, shared with ``run``; a sweep keeps
     metrics only and writes no per-case files.
     """
-    from harness.pipeline import (
-        ESTIMATE_COLUMNS,
-        FailedTruth,
-        SkippedRun,
-        evaluate_scenario,
-        prepare_scenario,
-        scenario_seeds,
-    )
+    from harness.pipeline import ESTIMATE_COLUMNS, FailedTruth, SkippedRun, evaluate_scenario, scenario_seeds
     from harness.scoring import score
     from harness.truth_events import scored_until_of, status_of
 
     t0 = time.perf_counter()
-    friction = None if case.friction == SCENARIO_FRICTION else case.friction
     faults = None if case.faults == NO_FAULTS else case.faults
     tb = None
     mu = math.nan
@@ -195,9 +217,7 @@ def run_case(case: StressCase) -> CaseResult:
     estimates = pd.DataFrame(columns=ESTIMATE_COLUMNS)
     runs: dict[str, Any]
     try:
-        sc = prepare_scenario(case.scenario, None, friction)
-        mu = _mu_label(sc)
-        veh = sc.vehicle_params()
+        sc, mu, veh = _prepared(case)
         mass = veh.mass_kg
         _, sim_seed, sensor_seed = scenario_seeds(sc.seed, case.scenario, case.seed)
         st = evaluate_scenario(sc, veh, case.observers, sim_seed, sensor_seed, faults=faults,
@@ -228,7 +248,7 @@ def run_case(case: StressCase) -> CaseResult:
 
 def build_cases(scenarios: list[str], frictions: list[str], faults: list[str], seeds: list[int],
                 observers: list[str], observer_timeout_s: float | None = None,
-                observer_options: dict[str, dict[str, Any]] | None = None) -> list[StressCase]:
+                observer_options: dict[str, dict[str, Any]] | None = None, sweep: str = "") -> list[StressCase]:
     """The Cartesian product scenarios × frictions × faults × seeds, in that nesting order."""
     cases: list[StressCase] = []
     for sc in scenarios:
@@ -238,7 +258,7 @@ def build_cases(scenarios: list[str], frictions: list[str], faults: list[str], s
                     cases.append(StressCase(index=len(cases), scenario=sc, friction=fr, faults=fa,
                                             seed_index=k, seed=s, observers=tuple(observers),
                                             observer_timeout_s=observer_timeout_s,
-                                            observer_options=observer_options or None))
+                                            observer_options=observer_options or None, sweep=sweep))
     return cases
 
 
@@ -266,9 +286,31 @@ def _crashed_case(case: StressCase, crash: Exception) -> CaseResult:
     return CaseResult(index=case.index, rows=metrics, seconds=0.0, traceback=status)
 
 
+def _warmup(cases: list[StressCase]) -> Any:
+    """The designs the cases need (:class:`harness.disk_cache.DesignWarmup`), solved once up front."""
+    from harness.disk_cache import DesignWarmup
+
+    c0 = cases[0]
+    return DesignWarmup.of([(c.scenario, None, None if c.friction == SCENARIO_FRICTION else c.friction)
+                            for c in cases], c0.observers, c0.observer_options, c0.observer_timeout_s)
+
+
+def dask_batches(cases: list[StressCase], workers: int) -> list[list[StressCase]]:
+    """Consecutive runs of cases, one Dask task each: about four per worker (so a slow batch does not
+    leave the others idle at the end), at most 16 cases (so results stream back during the sweep).
+
+    Consecutive cases share their (scenario, friction), so a batch reuses one prepared scenario.
+    """
+    if not cases:
+        return []
+    size = max(1, min(16, math.ceil(len(cases) / (4 * max(1, workers)))))
+    return [cases[i:i + size] for i in range(0, len(cases), size)]
+
+
 def _run_local(cases: list[StressCase], jobs: int) -> Iterator[CaseResult]:
     """Run the cases in this process or in ``jobs`` supervised worker processes (any order); a worker
     that dies costs only its case (``error: worker crashed (signal N)``) and is replaced."""
+    from harness.disk_cache import presolve_designs
     from harness.pipeline import process_pool
     from harness.worker_pool import WorkerCrashed
 
@@ -277,6 +319,10 @@ def _run_local(cases: list[StressCase], jobs: int) -> Iterator[CaseResult]:
             yield run_case(c)
         return
     with process_pool(run_case, min(jobs, len(cases))) as pool:
+        pool.start_workers()  # the others import while one solves the designs all of them need
+        presolve_designs(pool.submit_call, _warmup(cases))
+        # One case per task: a round trip costs well under a millisecond against ~0.1 s per case, and
+        # single cases keep the workers evenly loaded to the end and a crash costs one case.
         futures = {pool.submit(c): c for c in cases}
         for fut in as_completed(futures):
             try:
@@ -295,6 +341,8 @@ def _run_dask(cases: list[StressCase], address: str, jobs: int, info: dict[str, 
     except ImportError:
         raise StressSpecError("--dask needs the dask and distributed packages "
                               "(pip install 'dask[distributed]')", field="--dask") from None
+    from harness.disk_cache import presolve_designs
+
     t = time.perf_counter()
     cluster = None
     if address == "local":
@@ -309,52 +357,14 @@ def _run_dask(cases: list[StressCase], address: str, jobs: int, info: dict[str, 
     try:
         info["startup_s"] = round(time.perf_counter() - t, 3)
         info["workers"] = len(client.scheduler_info().get("workers", {}))
-        futures = client.map(run_case, cases, pure=False)
+        presolve_designs(lambda fn, arg: client.submit(fn, arg, pure=False), _warmup(cases))
+        futures = client.map(run_cases, dask_batches(cases, info["workers"] or jobs), pure=False)
         for fut in dask_completed(futures):
-            yield fut.result()
+            yield from fut.result()
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
-
-
-# ---- the case cache ------------------------------------------------------------------------------
-
-def _case_keys(cases: list[StressCase]) -> dict[int, str]:
-    """Cache key of every case that can be keyed exactly (see :mod:`harness.stress_cache`)."""
-    from harness.stress_cache import CaseKeys
-
-    ck = CaseKeys()
-    keys = {}
-    for c in cases:
-        k = ck.key(c.scenario, None if c.friction == SCENARIO_FRICTION else c.friction,
-                   None if c.faults == NO_FAULTS else c.faults, c.seed, c.observers,
-                   options=c.observer_options)
-        if k is not None:
-            keys[c.index] = k
-    return keys
-
-
-def _load_cached(cases: list[StressCase], keys: dict[int, str]) -> dict[int, CaseResult]:
-    """The cases an earlier sweep finished, with their position columns set for this sweep."""
-    from harness.stress_cache import load_case
-
-    found: dict[int, CaseResult] = {}
-    for c in cases:
-        if c.index in keys:
-            rows = load_case(keys[c.index], {"case": c.index, "seed_index": c.seed_index, "friction": c.friction,
-                                             "faults": c.faults, "seed": c.seed})
-            if rows is not None:
-                found[c.index] = CaseResult(index=c.index, rows=rows, seconds=0.0)
-    return found
-
-
-def _store_finished(result: CaseResult, key: str | None) -> None:
-    """Store a finished case unless it errored (a rerun retries errors) or cannot be keyed."""
-    from harness.stress_cache import is_cacheable, store_case
-
-    if key is not None and is_cacheable(result.rows, result.traceback):
-        store_case(key, result.rows)
 
 
 # ---- the sweep -----------------------------------------------------------------------------------
@@ -420,6 +430,7 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
         Bad scenario, observer, friction, fault spec, seed count or Dask address (before any work).
     """
     from harness.estimate import check_observer_timeout
+    from harness.stress_cache import case_keys, load_cached, store_finished
     from harness.stress_report import summarize, write_index
 
     t_wall = time.perf_counter()
@@ -440,9 +451,10 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
     observer_options = check_observer_options(observer_options, chosen,
                                               prepare_scenario(names[0], None, None).vehicle_params())
     seed_values = monte_carlo_seeds(base, n_seeds)
-    cases = build_cases(names, fr_list, fa_list, seed_values, chosen, observer_timeout_s, observer_options)
-    keys = _case_keys(cases)
-    results: dict[int, CaseResult] = {} if fresh else _load_cached(cases, keys)
+    cases = build_cases(names, fr_list, fa_list, seed_values, chosen, observer_timeout_s, observer_options,
+                        sweep=uuid.uuid4().hex)
+    keys = case_keys(cases)
+    results: dict[int, CaseResult] = {} if fresh else load_cached(cases, keys)
     todo = [c for c in cases if c.index not in results]
 
     dask_info: dict[str, Any] = {}
@@ -456,7 +468,7 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
             stream = (_run_dask(todo, dask, jobs, dask_info) if dask else _run_local(todo, jobs)) if todo else ()
             for r in stream:
                 results[r.index] = r
-                _store_finished(r, keys.get(r.index))  # at once: a killed sweep keeps what it finished
+                store_finished(r, keys.get(r.index))  # at once: a killed sweep keeps what it finished
                 c = cases[r.index]
                 bar.item(f"case {c.index}: {c.scenario} friction={c.friction} faults={c.faults} "
                          f"seed#{c.seed_index}: {r.rows['truth_status'].iloc[0] if len(r.rows) else '?'}, "
@@ -498,5 +510,5 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
 
 
 __all__: list[str] = ["CASE_COLUMNS", "CaseResult", "NO_FAULTS", "SCENARIO_FRICTION", "StressCase",
-                      "StressSpecError", "build_cases", "monte_carlo_seeds", "parse_fault_specs",
-                      "parse_friction_list", "parse_seed_count", "run_case", "run_stress"]
+                      "StressSpecError", "build_cases", "dask_batches", "monte_carlo_seeds", "parse_fault_specs",
+                      "parse_friction_list", "parse_seed_count", "run_case", "run_cases", "run_stress"]

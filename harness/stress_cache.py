@@ -249,5 +249,43 @@ def store_case(key: str, rows: pd.DataFrame, folder: Path | None = None) -> bool
     return write_entry(folder or cache_folder(CACHE_KIND), key, entry)
 
 
-__all__ = ["CACHE_KIND", "CaseKeys", "POSITION_COLUMNS", "Uncacheable", "code_fingerprint", "content_digest",
-           "is_cacheable", "load_case", "rows_from_entry", "rows_to_entry", "store_case"]
+# ---- the cases of a sweep -----------------------------------------------------------------------
+
+def case_keys(cases: list[Any]) -> dict[int, str]:
+    """Cache key of every ``harness.stress.StressCase`` that can be keyed exactly, by case index."""
+    from harness.stress import NO_FAULTS, SCENARIO_FRICTION
+
+    ck = CaseKeys()
+    keys = {}
+    for c in cases:
+        k = ck.key(c.scenario, None if c.friction == SCENARIO_FRICTION else c.friction,
+                   None if c.faults == NO_FAULTS else c.faults, c.seed, c.observers,
+                   options=c.observer_options)
+        if k is not None:
+            keys[c.index] = k
+    return keys
+
+
+def load_cached(cases: list[Any], keys: dict[int, str]) -> dict[int, Any]:
+    """The ``CaseResult`` of every case an earlier sweep finished, position columns set for this sweep."""
+    from harness.stress import CaseResult
+
+    found: dict[int, Any] = {}
+    for c in cases:
+        if c.index in keys:
+            rows = load_case(keys[c.index], {"case": c.index, "seed_index": c.seed_index, "friction": c.friction,
+                                             "faults": c.faults, "seed": c.seed})
+            if rows is not None:
+                found[c.index] = CaseResult(index=c.index, rows=rows, seconds=0.0)
+    return found
+
+
+def store_finished(result: Any, key: str | None) -> None:
+    """Store a finished ``CaseResult`` unless it errored (a rerun retries errors) or cannot be keyed."""
+    if key is not None and is_cacheable(result.rows, result.traceback):
+        store_case(key, result.rows)
+
+
+__all__ = ["CACHE_KIND", "CaseKeys", "POSITION_COLUMNS", "Uncacheable", "case_keys", "code_fingerprint",
+           "content_digest", "is_cacheable", "load_cached", "load_case", "rows_from_entry", "rows_to_entry",
+           "store_case", "store_finished"]

@@ -43,6 +43,7 @@ import traceback
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future
+from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from typing import Any, Generic, TypeVar
 
@@ -145,10 +146,26 @@ def exit_with(main_pid: int, parent_pid: int | None = None, *, death_signal: boo
 
 # ---- the pool ------------------------------------------------------------------------------------
 
-def _serve(conn: Connection, fn: Callable[[Any], Any], main_pid: int) -> None:
-    """Worker process: answer ``(True, result, "")`` or ``(False, exception, traceback)`` per task."""
+@dataclass(frozen=True)
+class _Call:
+    """A task that runs ``fn(arg)`` instead of the pool's function (see :meth:`WorkerPool.submit_call`)."""
+
+    fn: Callable[[Any], Any]
+    arg: Any
+
+
+def _serve(conn: Connection, fn: Callable[[Any], Any], main_pid: int, environ: dict[str, str]) -> None:
+    """Worker process: answer ``(True, result, "")`` or ``(False, exception, traceback)`` per task.
+
+    ``environ`` is the caller's environment when the worker was started. A forkserver child inherits
+    the environment the *forkserver* had when it started (the first pool of the process), so without
+    this a variable set later (``--cache-dir`` sets ``ROADTRUTH_CACHE``) would not reach the worker.
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is handled by the main process
     exit_with(main_pid, death_signal=True)  # a worker's main thread runs this
+    if environ != dict(os.environ):
+        os.environ.clear()
+        os.environ.update(environ)
     while True:
         try:
             task = conn.recv()
@@ -157,7 +174,8 @@ def _serve(conn: Connection, fn: Callable[[Any], Any], main_pid: int) -> None:
         if task is None:
             return
         try:
-            reply: tuple[bool, Any, str] = (True, fn(task), "")
+            result = task.fn(task.arg) if isinstance(task, _Call) else fn(task)
+            reply: tuple[bool, Any, str] = (True, result, "")
         except Exception as exc:  # noqa: BLE001 - re-raised in the caller, like ProcessPoolExecutor
             reply = (False, exc, traceback.format_exc())
         try:
@@ -208,6 +226,18 @@ class WorkerPool(Generic[T, R]):
             self._queue.append((fut, task))
             self._wake()
         return fut
+
+    def submit_call(self, fn: Callable[[Any], Any], arg: Any) -> Future[Any]:
+        """Run ``fn(arg)`` (a module-level function) in a worker instead of the pool's function,
+        e.g. to fill a cache in a worker before the pool's own tasks are submitted."""
+        return self.submit(_Call(fn, arg))  # type: ignore[arg-type]
+
+    def start_workers(self) -> None:
+        """Start every worker now rather than when tasks arrive, so their start-up (imports) runs
+        while the caller is still preparing the tasks."""
+        with self._lock:
+            while len(self._workers) < self._size and not self._closing:
+                self._start()
 
     def close(self) -> None:
         """Wait for every submitted task, then let the workers exit."""
@@ -302,7 +332,7 @@ class WorkerPool(Generic[T, R]):
 
     def _start(self) -> _Worker:
         parent_end, child_end = self._ctx.Pipe(duplex=True)
-        p = self._ctx.Process(target=_serve, args=(child_end, self._fn, os.getpid()), daemon=True,
+        p = self._ctx.Process(target=_serve, args=(child_end, self._fn, os.getpid(), dict(os.environ)), daemon=True,
                               name=f"roadtruth-{self._what}")
         p.start()
         child_end.close()

@@ -158,3 +158,64 @@ def test_shipped_designs_are_read_after_the_user_cache_and_checked_like_it(
     assert lmi.load_design(hit.key) is not None
     monkeypatch.setenv(lmi.SHIPPED_DESIGNS_ENV, "0")
     assert lmi.load_design(hit.key) is None
+
+
+# ---- designs are solved once, not once per worker ------------------------------------------------
+
+#: Put on PYTHONPATH of the observer hosts: logs every design that is solved (a cache miss) with
+#: the process that solved it, however the run spreads its work.
+_SOLVE_LOGGER = '''
+import os
+if os.environ.get("ROADTRUTH_TEST_SOLVE_LOG"):
+    import observers.lmi as _lmi
+    _cached_design = _lmi.cached_design
+
+    def _counted(payload, compute, **kw):
+        def solve():
+            with open(os.environ["ROADTRUTH_TEST_SOLVE_LOG"], "a") as f:
+                f.write(f"{os.getpid()} {_lmi.design_key(payload)}\\n")
+            return compute()
+        return _cached_design(payload, solve, **kw)
+
+    _lmi.cached_design = _counted
+'''
+
+
+def _solves(log: Path) -> list[tuple[str, str]]:
+    return [tuple(line.split()) for line in log.read_text().splitlines()] if log.exists() else []  # type: ignore[misc]
+
+
+@pytest.mark.parametrize("dask", [None, "local"])
+def test_parallel_workers_on_a_fresh_cache_solve_each_design_once(cache_root: Path, tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch, dask: str | None) -> None:
+    """Two workers start on an empty design cache at the same moment; without solving the designs
+    before they start, each would solve the same LMI design. Results equal the serial sweep's."""
+    import os
+
+    import pandas as pd
+
+    from harness.stress import run_stress
+
+    if dask:
+        pytest.importorskip("distributed")
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "sitecustomize.py").write_text(_SOLVE_LOGGER)
+    log = tmp_path / "solves.log"
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(site), *filter(None, [os.environ.get("PYTHONPATH")])]))
+    monkeypatch.setenv("ROADTRUTH_TEST_SOLVE_LOG", str(log))
+    kw = {"scenarios": ["step_steer"], "observers": ["kf_bicycle", "lpv_wang"], "frictions": ["1.0", "0.3"],
+          "faults": None, "seeds": 2, "base_seed": 3, "progress": False, "fresh": True}
+    par = run_stress(out=tmp_path / "par", jobs=2, dask=dask, **kw)  # type: ignore[arg-type]
+    solves = _solves(log)
+    assert len(solves) == 1, solves  # lpv_wang's one design (kf_bicycle has none), by one process
+    # A second, serial sweep on another empty cache solves it again (the logger does count) and
+    # gives the same rows: a design read back from the cache is the design that was solved.
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path / "cache2"))
+    from harness import observer_host
+
+    observer_host.shutdown()  # a host this process started earlier would lack the logger
+    ser = run_stress(out=tmp_path / "ser", jobs=1, **kw)  # type: ignore[arg-type]
+    assert len(_solves(log)) == 2 and _solves(log)[1][1] == solves[0][1]
+    a, b = (pd.read_csv(f / "stress.csv").drop(columns=["us_per_step"]) for f in (par, ser))
+    pd.testing.assert_frame_equal(a, b, check_exact=True)
