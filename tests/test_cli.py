@@ -110,3 +110,45 @@ def test_console_script_keeps_exit_codes_and_whole_output() -> None:
     assert "step_steer" in names
     bad = run_cli("scenarios", "--no-such-flag")
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1
+
+
+def test_observer_listing_is_remembered_and_then_imports_no_observer(tmp_path: Path) -> None:
+    """The second `roadtruth observers` reads the remembered rows: same text, no numba or cvxpy."""
+    import os
+
+    env = {**os.environ, "ROADTRUTH_CACHE": str(tmp_path / "cache")}
+    probe = ("import sys, json, contextlib, io\nfrom harness.cli import main\n"
+             "with contextlib.redirect_stdout(io.StringIO()) as out:\n    assert main(['observers', '--json']) == 0\n"
+             f"print(json.dumps({{'out': out.getvalue(), 'heavy': [m for m in {HEAVY!r} if m in sys.modules]}}))")
+    runs = []
+    for _ in range(2):
+        res = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300, env=env)
+        assert res.returncode == 0, res.stderr
+        runs.append(json.loads(res.stdout.strip().splitlines()[-1]))
+    assert "numba" in runs[0]["heavy"]  # the first listing imports the observers ...
+    assert runs[1]["heavy"] == []       # ... the second does not
+    assert runs[0]["out"] == runs[1]["out"]
+    from observers.registry import observer_info
+
+    assert runs[1]["out"] == json.dumps(observer_info(), indent=2, default=str) + "\n"
+
+
+def test_observer_catalog_key_follows_every_source_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import os
+
+    from harness import observer_catalog
+
+    pkgs = {name: tmp_path / name for name in observer_catalog.PACKAGES}
+    for d in pkgs.values():
+        (d / "sub").mkdir(parents=True)
+        (d / "a.py").write_text("x = 1\n")
+    monkeypatch.setattr(observer_catalog, "_package_dir", lambda name: pkgs[name])
+    k0 = observer_catalog.catalog_key()
+    assert observer_catalog.catalog_key() == k0
+    (pkgs["observers"] / "sub" / "new.py").write_text("")
+    k1 = observer_catalog.catalog_key()
+    f = pkgs["harness"] / "a.py"
+    st = f.stat()
+    os.utime(f, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))
+    k2 = observer_catalog.catalog_key()
+    assert len({k0, k1, k2}) == 3
