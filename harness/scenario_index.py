@@ -5,17 +5,19 @@ speed), not its road, friction map or driver: those are built by ``harness.scena
 which imports the compiled (numba) road, friction and tire code and costs about a second before the
 first line could be printed. Here only the YAML is read, and the header fields are checked exactly as
 ``harness.scenario.parse_scenario`` checks them (the same ``Fields`` calls), so the rows are the ones
-a full load gives (tests/test_cli.py compares them for every shipped scenario).
+a full load gives (tests/test_cli.py compares them for every shipped scenario). The rows are
+remembered between commands while the files and the code are unchanged (:func:`listing_key`).
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
 from harness.errors import ScenarioError
-from harness.strict_yaml import Fields, load_mapping, short_repr
 
 
 def scenario_files() -> list[Path]:
@@ -45,6 +47,8 @@ def _vehicle(value: str, source: str, base: Path) -> str:
 def scenario_header(path: Path) -> dict[str, Any]:
     """One listing row of a scenario file: name, description, standard, tags, vehicle,
     duration_s [s], initial_speed_mps [m/s]. Raises ``ScenarioError`` for a bad header field."""
+    from harness.strict_yaml import Fields, load_mapping, short_repr  # YAML only when not remembered
+
     source = str(path)
     f = Fields(load_mapping(path, ScenarioError), source=source, error=ScenarioError)
     name = f.string("name")
@@ -63,6 +67,36 @@ def scenario_header(path: Path) -> dict[str, Any]:
             "vehicle": vehicle, "duration_s": duration, "initial_speed_mps": v0}
 
 
+CACHE_KIND = "scenario-listing"
+
+
+def listing_key() -> str:
+    """SHA-256 (hex) of what the rows are derived from: the package sources (as for the observer
+    listing, ``harness.observer_catalog.catalog_key``) and the path, size and modification time of
+    every shipped scenario and vehicle file."""
+    from harness.observer_catalog import catalog_key
+
+    h = hashlib.sha256(catalog_key().encode() + b"\n")
+    root = Path(str(files("harness")))
+    for folder in ("scenarios", "vehicles"):
+        for p in sorted((root / folder).glob("*.y*ml")):
+            st = p.stat()
+            h.update(f"{folder}/{p.name}\t{st.st_size}\t{st.st_mtime_ns}\n".encode())
+    return h.hexdigest()
+
+
 def scenario_summaries() -> list[dict[str, Any]]:
-    """One row per shipped scenario for ``roadtruth scenarios [--json]``, in name order."""
-    return [scenario_header(p) for p in scenario_files()]
+    """One row per shipped scenario for ``roadtruth scenarios [--json]``, in name order.
+
+    Remembered in the cache folder (kind ``scenario-listing``) under :func:`listing_key`: parsing
+    the YAML of every file costs a few tenths of a second, and the rows change only with the files.
+    """
+    from harness.disk_cache import cache_folder, read_entry, write_entry
+
+    key, folder = listing_key(), cache_folder(CACHE_KIND)
+    hit = read_entry(folder, key)
+    if isinstance(hit, dict) and isinstance(hit.get("rows_json"), str):
+        return json.loads(hit["rows_json"])  # the text keeps the rows' key order
+    rows = [scenario_header(p) for p in scenario_files()]
+    write_entry(folder, key, {"rows_json": json.dumps(rows)})
+    return rows

@@ -52,12 +52,15 @@ def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path: Path) -> Non
     assert [p for p in tmp_path.iterdir()] == []
 
 
-def test_scenario_listing_gives_the_rows_of_a_full_load() -> None:
-    """`roadtruth scenarios` reads only the headers; every row equals what loading the scenario gives."""
+def test_scenario_listing_gives_the_rows_of_a_full_load(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`roadtruth scenarios` reads only the headers; every row equals what loading the scenario gives,
+    computed or remembered."""
     from harness.scenario import available_scenarios, load_scenario
     from harness.scenario_index import scenario_summaries
 
+    monkeypatch.setenv("ROADTRUTH_CACHE", str(tmp_path / "cache"))
     rows = scenario_summaries()
+    assert scenario_summaries() == rows  # the second from the cache
     assert [r["name"] for r in rows] == available_scenarios()
     for r in rows:
         s = load_scenario(r["name"])
@@ -77,12 +80,19 @@ def _loaded_after(code: str) -> list[str]:
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
-def test_scenarios_command_imports_none_of_the_compiled_or_report_stack() -> None:
-    code = ("from harness.cli import main\n"
+def test_scenarios_command_imports_none_of_the_compiled_or_report_stack(tmp_path: Path) -> None:
+    """Listing scenarios never imports numba & co.; a repeat listing does not even parse YAML."""
+    code = (f"import os\nos.environ['ROADTRUTH_CACHE'] = {str(tmp_path / 'cache')!r}\n"
+            "from harness.cli import main\n"
             "with contextlib.redirect_stdout(io.StringIO()) as out:\n"
             "    assert main(['scenarios']) == 0\n"
-            "assert 'step_steer' in out.getvalue()")
+            "assert 'step_steer' in out.getvalue()\n"
+            "print(json.dumps({'yaml': 'yaml' in sys.modules}))")
     assert _loaded_after(code) == []
+    assert _loaded_after(code) == []
+    again = subprocess.run([sys.executable, "-c", "import sys, json, contextlib, io\n" + code],
+                           capture_output=True, text=True, timeout=300)
+    assert json.loads(again.stdout.strip().splitlines()[-1]) == {"yaml": False}
 
 
 def test_simulate_path_imports_neither_the_report_builder_nor_scipy_signal() -> None:
