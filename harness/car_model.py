@@ -49,6 +49,9 @@ TIRE_HALF_WIDTH_M = 0.11
 #: Lane marking dashes: length and period [m]; width [m].
 DASH_LENGTH_M, DASH_PERIOD_M, MARKING_WIDTH_M = 3.0, 12.0, 0.15
 MAX_DASHES = 4000
+#: Half thickness of a dash [m], and its clearance over a 3D road surface [m] (its lowest bottom point
+#: above the surface: enough to win the depth test against the road mesh, too little to see).
+MARKING_HALF_THICKNESS_M, MARKING_CLEARANCE_M = 0.002, 0.003
 PATCH_RGBA = {"ice": "0.70 0.85 1.0 0.85", "snow": "0.96 0.96 0.98 0.9", "wet": "0.25 0.30 0.40 0.8",
               "dry": "0.45 0.45 0.42 0.6", "": "0.85 0.55 0.25 0.6"}
 
@@ -246,6 +249,52 @@ def _ground_extent(scenario: Any) -> tuple[float, float, float, float]:
             float(smp[:, 2].min() - pad), float(smp[:, 2].max() + pad))
 
 
+def _dash_frames(road: Any, mids_m: np.ndarray, half_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frames of the lane dashes on a 3D road, left and right marking of each dash in turn.
+
+    Parameters
+    ----------
+    road : the ``harness.road.Road`` (not flat).
+    mids_m : (k,) path coordinates of the dash centres [m].
+    half_m : lateral offset of the markings from the centre line [m].
+
+    Returns
+    -------
+    pos : (2k, 3) box centres [m]; xaxis, yaxis : (2k, 3) unit box axes (world frame).
+
+    Each box lies in the road's tangent plane at its centre: z axis = the surface normal n there,
+    x axis = the road direction lifted onto that plane, (t, grad z . t) normalised, so that it stays
+    over the marking line; y = n x x. On a curved grade the plane leaves the surface by a few mm
+    over the dash's length, so the box is then moved along n until its lowest bottom point (of 5
+    along each long edge) is ``MARKING_CLEARANCE_M`` above the surface.
+    """
+    x, y, psi = road.pose_at(mids_m)
+    side = np.repeat([[1.0, -1.0]], mids_m.size, axis=0).ravel()
+    s = np.repeat(mids_m, 2)
+    x, y, psi = np.repeat(x, 2), np.repeat(y, 2), np.repeat(psi, 2)
+    c, sn = np.cos(psi), np.sin(psi)
+    px, py = x - side * half_m * sn, y + side * half_m * c
+    on = road.surface(px, py, s_hint_m=s)
+    n = on["normal"]
+    grad_t = -(n[:, 0] * c + n[:, 1] * sn) / n[:, 2]  # dz/d(horizontal step along t)
+    xaxis = np.column_stack([c, sn, grad_t])
+    xaxis /= np.linalg.norm(xaxis, axis=1, keepdims=True)
+    yaxis = np.cross(n, xaxis)
+    pos = np.column_stack([px, py, on["z_m"]]) + MARKING_HALF_THICKNESS_M * n
+    # Bottom points along both long edges: their height over the surface decides the final lift.
+    u = np.linspace(-0.5, 0.5, 5) * DASH_LENGTH_M
+    v = np.array([-0.5, 0.5]) * MARKING_WIDTH_M
+    uu, vv = (a.ravel() for a in np.meshgrid(u, v))
+    bottom = (pos[:, None, :] + uu[None, :, None] * xaxis[:, None, :] + vv[None, :, None] * yaxis[:, None, :]
+              - MARKING_HALF_THICKNESS_M * n[:, None, :])
+    under = road.surface(bottom[..., 0].ravel(), bottom[..., 1].ravel(),
+                         s_hint_m=(s[:, None] + uu[None, :]).ravel())["z_m"].reshape(bottom.shape[:2])
+    low = (bottom[..., 2] - under).min(axis=1)
+    # A move d along n raises a point's height over a plane by d / n_z.
+    pos += ((MARKING_CLEARANCE_M - low) * n[:, 2])[:, None] * n
+    return pos, xaxis, yaxis
+
+
 def _scenario_visuals(scenario: Any, extent: tuple[float, float, float, float]) -> tuple[str, str]:
     """(assets, world geoms) of the road markings, 3D road surface, friction patches and lead car."""
     road = scenario.road
@@ -263,19 +312,21 @@ def _scenario_visuals(scenario: Any, extent: tuple[float, float, float, float]) 
                       f'face="{" ".join(str(int(i)) for i in faces.ravel())}" inertia="shell"/>')
         geoms.append('<geom name="road_surface" type="mesh" mesh="road_surface" contype="0" conaffinity="0" '
                      'rgba="0.30 0.31 0.32 1" group="2"/>')
-    for s0 in starts:
-        mid = s0 + DASH_LENGTH_M / 2.0
-        if any(a <= mid <= b for a, b in gaps):
-            continue
-        x, y, psi = road.pose_at(mid)
-        for side in (1.0, -1.0):
-            px, py = x - side * half * math.sin(psi), y + side * half * math.cos(psi)
-            pz, euler = 0.006, f"0 0 {_f(psi)}"
-            if not flat:
-                pz = float(road.surface(px, py, s_hint_m=mid)["z_m"][0]) + 0.012
-            geoms.append(f'<geom type="box" size="{_f(DASH_LENGTH_M / 2)} {_f(MARKING_WIDTH_M / 2)} 0.002" '
-                         f'pos="{_f(px)} {_f(py)} {_f(pz)}" euler="{euler}" contype="0" conaffinity="0" '
-                         f'material="marking" group="2"/>')
+    mids = [s0 + DASH_LENGTH_M / 2.0 for s0 in starts]
+    mids = [mid for mid in mids if not any(a <= mid <= b for a, b in gaps)]
+    size = f'size="{_f(DASH_LENGTH_M / 2)} {_f(MARKING_WIDTH_M / 2)} {_f(MARKING_HALF_THICKNESS_M)}"'
+    if flat:
+        for mid in mids:
+            x, y, psi = road.pose_at(mid)
+            for side in (1.0, -1.0):
+                px, py = x - side * half * math.sin(psi), y + side * half * math.cos(psi)
+                geoms.append(f'<geom type="box" {size} pos="{_f(px)} {_f(py)} 0.006" euler="0 0 {_f(psi)}" '
+                             'contype="0" conaffinity="0" material="marking" group="2"/>')
+    elif mids:
+        pos, xaxis, yaxis = _dash_frames(road, np.asarray(mids), half)
+        for c, ax, ay in zip(pos, xaxis, yaxis, strict=True):
+            geoms.append(f'<geom type="box" {size} pos="{_vec(c)}" xyaxes="{_vec(ax)} {_vec(ay)}" '
+                         'contype="0" conaffinity="0" material="marking" group="2"/>')
     for j, p in enumerate(scenario.friction.patches):
         mesh = _patch_mesh(p.vertices, extent)
         if mesh is None:

@@ -341,3 +341,41 @@ def test_mesh_of_a_long_road_stays_within_the_triangle_budget() -> None:
     assert faces.shape[0] <= 4000 and faces.shape[0] >= 3000
     # The strip ends at the road's last sample (right edge = last vertex).
     assert verts[-1, 0] == pytest.approx(road.samples[-1, 1] + 3.5 * math.sin(road.samples[-1, 3]), abs=1e-9)
+
+
+# ---- lane markings on the render model ---------------------------------------------------------------
+
+@pytest.mark.parametrize("name", ["hill", "banked_curve"])
+def test_lane_dashes_lie_on_the_3d_road_surface(name: str) -> None:
+    # The compiled render model: each dash is a thin box; its four top corners must sit a few mm
+    # above the road surface there (not buried at one end and floating at the other on a grade or
+    # a bank), and its top face must be parallel to the surface (z axis = the surface normal).
+    import mujoco
+
+    from harness.car_model import build_mjcf
+    from harness.vehicle import load_vehicle
+
+    sc = load_scenario(name)
+    road = sc.road
+    m = mujoco.MjModel.from_xml_string(build_mjcf(load_vehicle(sc.vehicle), sc, visuals=True))
+    marking = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_MATERIAL, "marking")
+    dashes = np.flatnonzero((m.geom_matid == marking) & (m.geom_type == mujoco.mjtGeom.mjGEOM_BOX))
+    assert dashes.size > 50
+    corners, axes_z = [], []
+    for g in dashes:
+        assert m.geom_bodyid[g] == 0  # world geoms: pos and quat are world coordinates
+        rot = np.empty(9)
+        mujoco.mju_quat2Mat(rot, m.geom_quat[g])
+        rot = rot.reshape(3, 3)
+        sx, sy, sz = m.geom_size[g]
+        for u, v in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
+            corners.append(m.geom_pos[g] + rot @ np.array([u * sx, v * sy, sz]))
+        axes_z.append(rot[:, 2])
+    corners = np.asarray(corners)
+    on = road.surface(corners[:, 0], corners[:, 1])
+    clearance = corners[:, 2] - on["z_m"]
+    assert clearance.min() >= 0.002, f"a dash corner {clearance.min() * 1e3:.1f} mm above the road"
+    assert clearance.max() <= 0.020, f"a dash corner {clearance.max() * 1e3:.1f} mm above the road"
+    # To 5e-4 (0.03 deg): the normal is taken under the box centre before its lift along the normal.
+    centre_normal = road.surface(m.geom_pos[dashes, 0], m.geom_pos[dashes, 1])["normal"]
+    np.testing.assert_allclose(np.asarray(axes_z), centre_normal, rtol=0, atol=5e-4)
