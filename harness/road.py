@@ -250,17 +250,36 @@ def _advance_on_arc(x0: np.ndarray, y0: np.ndarray, psi0: np.ndarray, rho: np.nd
 
 def _nearest_in_window(smp: np.ndarray, x: np.ndarray, y: np.ndarray, hint: np.ndarray,
                        half_width: int) -> np.ndarray:
+    """Index of the sample nearest to each point among ``hint - half_width .. hint + half_width``
+    (clipped to the road; the first of equal distances wins)."""
+    flat_x = np.ascontiguousarray(x, dtype=np.float64).ravel()
+    flat_y = np.ascontiguousarray(y, dtype=np.float64).ravel()
+    flat_h = np.ascontiguousarray(hint, dtype=np.int64).ravel()
+    return _nearest_in_window_compiled(smp, flat_x, flat_y, flat_h, int(half_width)).reshape(x.shape)
+
+
+@njit(cache=True)
+def _nearest_in_window_compiled(smp: np.ndarray, x: np.ndarray, y: np.ndarray, hint: np.ndarray,
+                                half_width: int) -> np.ndarray:
+    # Compiled: a hinted projection of a whole truth frame scans ~2 half_width samples per point,
+    # which vectorised cost ~0.2 s per 10 000 points (truth events of every simulation).
     n = smp.shape[0]
-    offs = np.arange(-half_width, half_width + 1)
-    out = np.empty(x.shape, dtype=np.int64)
-    flat_x, flat_y, flat_h, flat_o = x.ravel(), y.ravel(), hint.ravel(), out.ravel()
-    chunk = max(1, 2_000_000 // offs.size)
-    for a in range(0, flat_x.size, chunk):
-        b = min(a + chunk, flat_x.size)
-        idx = np.clip(flat_h[a:b, None] + offs[None, :], 0, n - 1)
-        d2 = (smp[idx, 1] - flat_x[a:b, None]) ** 2 + (smp[idx, 2] - flat_y[a:b, None]) ** 2
-        flat_o[a:b] = idx[np.arange(b - a), np.argmin(d2, axis=1)]
-    return flat_o.reshape(x.shape)
+    out = np.empty(x.shape[0], dtype=np.int64)
+    for p in range(x.shape[0]):
+        h = hint[p]
+        lo = min(max(h - half_width, 0), n - 1)
+        hi = min(max(h + half_width, 0), n - 1)
+        best_k = lo
+        best = math.inf
+        for k in range(lo, hi + 1):
+            dx = smp[k, 1] - x[p]
+            dy = smp[k, 2] - y[p]
+            d = dx * dx + dy * dy
+            if d < best:
+                best = d
+                best_k = k
+        out[p] = best_k
+    return out
 
 
 def _foot(smp: np.ndarray, j: np.ndarray, x: np.ndarray, y: np.ndarray,

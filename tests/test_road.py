@@ -174,3 +174,29 @@ def test_bad_segments_rejected() -> None:
         build_road((0.0, 0.0, 0.0), [Segment("spiral", 10.0)])
     with pytest.raises(ValueError):
         build_road((0.0, 0.0, 0.0), [Segment("straight", 0.0)])
+
+
+def test_hinted_projection_picks_the_nearest_sample_of_its_window() -> None:
+    # The hinted NumPy projection searches the samples within +-half_width of the hint (clipped to the
+    # road) and keeps the first of equal distances: brute force over the same window must agree,
+    # on a road that passes near itself (two laps of a circle: the window keeps the hinted lap),
+    # at both ends, far off the road, with exact ties (points on the circle's centre) and NaN.
+    R = 30.0
+    road = build_road((0.0, 0.0, 0.0), [Segment("arc", 4 * math.pi * R, 1.0 / R)], ds_m=0.25)
+    smp, n = road.samples, road.samples.shape[0]
+    rng = np.random.default_rng(7)
+    s_true = rng.uniform(-20.0, road.length_m + 20.0, 4000)
+    x, y = _points_off_the_road(road, s_true, rng.uniform(-12.0, 12.0, s_true.size))
+    hint = s_true + rng.uniform(-30.0, 30.0, s_true.size)
+    x = np.concatenate([x, [0.0, 0.0, np.nan]])  # the circle's centre (0, R): every sample ties
+    y = np.concatenate([y, [R, R, 1.0]])
+    hint = np.concatenate([hint, [5.0, 300.0, 50.0]])
+    got = road.project(x, y, s_hint_m=hint)["i"]
+    h = np.clip(np.rint(hint / road.ds_m), 0, n - 1).astype(np.int64)
+    half = int(round(8.0 * 4 / road.ds_m))
+    idx = np.clip(h[:, None] + np.arange(-half, half + 1)[None, :], 0, n - 1)
+    d2 = (smp[idx, 1] - x[:, None]) ** 2 + (smp[idx, 2] - y[:, None]) ** 2
+    want = idx[np.arange(x.size), np.argmin(d2, axis=1)]
+    np.testing.assert_array_equal(got, want)
+    # The hinted lap is kept: a point near the start, hinted on the second lap, stays on it.
+    assert road.project(1.0, 0.5, s_hint_m=2 * math.pi * R + 1.0)["s_m"][0] > 2 * math.pi * R - 1.0
