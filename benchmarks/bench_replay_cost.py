@@ -10,7 +10,13 @@ LMI design caches, and prints per output format:
   the peak of the sum of all of them (sampled every 50 ms from ``/proc``),
 * CPU time of the command and its hosts [s] (user + system; comparable between runs on a busy
   machine, where wall time is not),
-* bytes written to the output folder [MB] and the three largest files.
+* bytes written to the output folder [MB] and the three largest files,
+* each figure's ratio to the target of a Revs replay: < 10 s wall (warm) and < 500 MB peak RSS of
+  any one process (main or observer host).
+
+Then, in one more child interpreter, the CPU time of each observer's ``run()`` over the log's run
+segments [s] (``time.process_time``; design and compiled-code loading excluded; best of ``--repeat``),
+sorted, with its share: CPU time, unlike wall time, is comparable on a loaded machine.
 
 ``--stages`` adds one more run that calls ``harness.replay.replay`` in a child interpreter with
 ``on_stage`` and prints, per stage of ``harness.replay.STAGES`` (plus the interpreter's imports):
@@ -21,7 +27,7 @@ The machine's 1-minute load average is printed before and after, because the fig
 comparable between runs in the same conditions.
 
     .venv/bin/python benchmarks/bench_replay_cost.py [--format csv,parquet] [--repeat 1] [--no-warmup]
-        [--stages] [--jobs N] [--observer O,...] [--source CHECKOUT]
+        [--stages] [--no-observer-cpu] [--jobs N] [--observer O,...] [--source CHECKOUT]
 """
 
 from __future__ import annotations
@@ -43,6 +49,8 @@ REVS_LOG = (Path(__file__).resolve().parents[1].parent / "shared" / "data" / "re
 
 SOURCE = Path(__file__).resolve().parents[1]
 SAMPLE_S = 0.05  # memory sampling period [s]
+TARGET_WALL_S = 10.0    # target: a warm Revs replay in under 10 s ...
+TARGET_PEAK_MB = 500.0  # ... and under 500 MB peak RSS
 CLK_TCK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 
 
@@ -169,6 +177,7 @@ def replay_cost(out: Path, fmt: str | None, source: Path = SOURCE, observers: st
     files = [(str(p.relative_to(out)), p.stat().st_size) for p in out.rglob("*") if p.is_file()]
     files.sort(key=lambda f: -f[1])
     return {"wall_s": wall, "peak_rss_mb": usage.ru_maxrss / 1024.0, "sum_rss_mb": sampler.sum_peak,
+            "main_rss_mb": sampler.main_peak, "host_rss_mb": sampler.child_peak,
             "cpu_s": usage.ru_utime + usage.ru_stime,
             "written_mb": sum(s for _, s in files) / 1e6, "largest": files[:3],
             "stderr_lines": float(len(err.splitlines()))}
@@ -200,6 +209,61 @@ def stage_child(out: Path, fmt: str, observers: str | None, jobs: int | None, t_
     runs = next(iter(run["observer_runs"].values()))
     obs = {k: (v.get("us_per_step") or 0.0) * (v.get("n_steps") or 0) / 1e6 for k, v in runs.items()}
     print(json.dumps({"stages": rows, "observer_run_s": obs}))
+
+
+# ---- CPU per observer (in a child interpreter) -----------------------------------------------------
+
+def observer_cpu_child(observers: str | None, repeat: int) -> None:
+    """Print ``{observer: best CPU seconds of run() over the run segments}`` as one JSON line."""
+    from harness.replay import prepare_log
+    from harness.replay_log import load_column_map
+    from harness.vehicle import load_vehicle
+    from observers.registry import available_observers, create, observer_class
+
+    veh = load_vehicle("ferrari_250lm", replay=True)
+    rl = prepare_log(REVS_LOG, load_column_map("revs_250lm"), vehicle=veh)
+    names = observers.split(",") if observers else available_observers()
+    out: dict[str, float | None] = {}
+    for name in names:
+        cls = observer_class(name)
+        best = None
+        if not all(c in rl.measurements[s.index].columns for c in cls.inputs for s in rl.run_segments):
+            out[name] = None    # the replay skips it too: the log lacks a signal it needs
+            continue
+        segs = [(m["t_s"].to_numpy(float), m[list(cls.inputs)].to_numpy(float))
+                for m in (rl.measurements[s.index] for s in rl.run_segments)]
+        try:
+            for _ in range(max(1, repeat)):
+                total = 0.0
+                for t, Y in segs:
+                    obs = create(name, veh)
+                    obs.run(t[:5], Y[:5])   # the design and the compiled code's loading, not timed
+                    c = time.process_time()
+                    obs.run(t, Y)
+                    total += time.process_time() - c
+                best = total if best is None else min(best, total)
+        except Exception:  # noqa: BLE001 - an observer that cannot run on the log is listed as such
+            best = None
+        out[name] = best
+    print(json.dumps(out))
+
+
+def print_observer_cpu(observers: str | None, repeat: int, source: Path) -> None:
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--_cpu-child", "--repeat", str(repeat)]
+    cmd += ["--observer", observers] if observers else []
+    res = subprocess.run(cmd, capture_output=True, text=True, cwd=source,
+                         env={**os.environ, "MUJOCO_GL": "egl", "PYTHONPATH": str(source)})
+    if res.returncode != 0:
+        raise SystemExit(f"observer CPU run failed: {res.stderr.strip()[-800:]}")
+    data = json.loads(res.stdout.strip().splitlines()[-1])
+    ran = sorted(((k, v) for k, v in data.items() if v is not None), key=lambda kv: -kv[1])
+    total = sum(v for _, v in ran)
+    print(f"\nobservers' run() CPU on the log's run segments (best of {max(1, repeat)}), {total:.2f} s in all:")
+    for k, v in ran:
+        print(f"  {k:<36} {v:7.3f} s  {v / total if total else 0.0:5.1%}")
+    failed = [k for k, v in data.items() if v is None]
+    if failed:
+        print(f"  not run (inputs missing from the log, or failed): {', '.join(failed)}")
 
 
 def print_stages(fmt: str, observers: str | None, jobs: int | None, source: Path) -> None:
@@ -236,11 +300,16 @@ def main() -> None:
     ap.add_argument("--observer", help="comma-separated observers (default: every registered one)")
     ap.add_argument("--jobs", type=int, help="--jobs of the replay (default: the command's default)")
     ap.add_argument("--stages", action="store_true", help="also print wall, CPU and memory per stage")
+    ap.add_argument("--no-observer-cpu", action="store_true", help="skip the CPU time per observer")
     ap.add_argument("--_stage-child", dest="stage_child", type=Path, help=argparse.SUPPRESS)
+    ap.add_argument("--_cpu-child", dest="cpu_child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--_t0", dest="t0", type=float, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if not REVS_LOG.is_file():
         raise SystemExit(f"the shared Revs log is not available ({REVS_LOG.name})")
+    if a.cpu_child:
+        observer_cpu_child(a.observer, a.repeat)
+        return
     if a.stage_child is not None:
         stage_child(a.stage_child, a.format, a.observer, a.jobs, a.t0 or time.time())
         return
@@ -260,6 +329,11 @@ def main() -> None:
                   f"peak RSS {best['peak_rss_mb']:.0f} MB (largest process; all processes together "
                   f"{best['sum_rss_mb']:.0f} MB), written {best['written_mb']:.1f} MB (largest: {largest}); "
                   f"{best['stderr_lines']:.0f} progress lines on stderr")
+            print(f"  vs the targets: wall {best['wall_s'] / TARGET_WALL_S:.2f}x of {TARGET_WALL_S:.0f} s; peak RSS "
+                  f"{best['peak_rss_mb'] / TARGET_PEAK_MB:.2f}x of {TARGET_PEAK_MB:.0f} MB (main process "
+                  f"{best['main_rss_mb']:.0f} MB, largest observer host {best['host_rss_mb']:.0f} MB)")
+    if not a.no_observer_cpu:
+        print_observer_cpu(a.observer, a.repeat, a.source)
     if a.stages:
         for fmt in formats:
             print_stages(fmt or "csv", a.observer, a.jobs, a.source)
