@@ -45,7 +45,9 @@ def designs() -> None:
 def table(out: Path, label: str) -> None:
     m = pd.read_csv(out / "metrics.csv")
     m = m[m.state.isin(STATES)]
-    piv = m.pivot_table(index="observer", columns="state", values="rmse").reindex(columns=STATES)
+    # unstack, not pivot_table: an observer that diverged has NaN everywhere and must still be listed.
+    piv = (m.drop_duplicates(["observer", "state"]).set_index(["observer", "state"])["rmse"].unstack()
+           .reindex(index=pd.unique(m["observer"]), columns=STATES))
     us = m.groupby("observer")["us_per_step"].first()
     st = m.groupby("observer")["status"].agg(lambda s: ",".join(sorted(set(s))))
     print(f"\n{label}: RMSE per state [m, m, rad, m/s, rad/s], us/step, status")

@@ -117,6 +117,7 @@ def main() -> None:
     import pandas as pd
 
     from harness.pipeline import run_suite
+    from harness.table_io import read_estimates
 
     with tempfile.TemporaryDirectory(prefix="bench-radar-") as tmp:
         out = run_suite(scenarios=["car_following"], observers=list(OBSERVERS), out=Path(tmp) / "r",
@@ -125,7 +126,8 @@ def main() -> None:
         folder = out / "car_following"
         truth = pd.read_csv(folder / "truth.csv")
         meas = pd.read_csv(folder / "measurements.csv")
-        est = pd.read_csv(folder / "estimates.csv")
+        # Long form (t_s, observer, state, value) whichever layout the run wrote (it writes wide).
+        est = read_estimates(folder)
 
     print(f"sensors: {a.sensors or 'automotive (scenario default)'}, seed: {a.seed or 'scenario (12)'}")
     print("\nmetrics.csv (scored from t = 0 on the 1 kHz truth):")
