@@ -42,8 +42,12 @@ precedence is error > diverged > saturated > ok; ``skipped`` is carried as it is
 * ``unusable (RMS error N× that of assuming zero)`` on the row of a state whose RMS error exceeds
   both the RMS of the true state over the scored window (the error of the trivial estimate 0) and
   its convergence band (``unusable_state_status``; not for poses and distances, which have no
-  natural zero). This one is per state: a radar observer whose range is good but whose lead
-  acceleration is worse than guessing 0 is ``ok`` on range and ``unusable`` on the acceleration.
+  natural zero). A state whose truth is nearly zero (RMS below a tenth of its band; the curvature of
+  a straight road is exactly 0, so any error is "∞×" that of assuming zero) is judged against the band:
+  ``unusable (error outside its convergence band x % of the time; …)`` only if its RMS error exceeds
+  the band and the error is outside the band for more than half the scored time. This one is per
+  state: a radar observer whose range is good but whose lead acceleration is worse than guessing 0
+  is ``ok`` on range and ``unusable`` on the acceleration.
 
 Scoring of each observer starts at its first estimate: leading NaN rows (no measurement yet) are
 "not started", neither scored nor counted as missing.
@@ -356,15 +360,37 @@ NO_ZERO_BASELINE = frozenset({"x_m", "y_m", "psi_rad", "s_m", "range_m"})
 #: An estimate whose RMS error exceeds both the state's own RMS over the scored window (the error of
 #: the estimate 0) and its convergence band is not usable: ``unusable (…)``.
 UNUSABLE_RATIO = 1.0
+#: A truth whose RMS over the scored window is below this fraction of its convergence band is
+#: "nearly zero" (e.g. the curvature of a straight road, identically 0): then "N× the error of
+#: assuming zero" has no scale (any transient is "∞×", and the ratio exceeds 1/NEARLY_ZERO_FRACTION
+#: as soon as the RMS error exceeds the band), so the estimate is judged against its band instead.
+NEARLY_ZERO_FRACTION = 0.1
+#: On a nearly-zero truth an estimate is unusable only if, besides an RMS error above the band, its
+#: error is outside the band for more than this fraction of the scored time (it does not settle).
+MAX_OUTSIDE_BAND_FRACTION = 0.5
 
 
-def unusable_state_status(state: str, status: str, rmse_value: float, truth: np.ndarray, band: float) -> str:
-    """``unusable (RMS error N× that of assuming zero)`` for a state whose estimate is worse than the
-    trivial estimate 0 (and than its convergence band); otherwise ``status`` unchanged.
+def unusable_state_status(state: str, status: str, rmse_value: float, truth: np.ndarray, band: float,
+                          error: np.ndarray | None = None, dt_s: np.ndarray | None = None) -> str:
+    """``unusable (…)`` for a state whose estimate is worse than the trivial estimate 0 (and than its
+    convergence band); otherwise ``status`` unchanged.
 
     Only ``ok`` is overridden. A kinematic integrator that drifted to 20° on a car whose sideslip
     stays within 2°, or a certified high-gain observer that turns range noise into 50 m/s² of
     acceleration error, is reported as such, not as ``ok`` with a number among numbers.
+
+    Parameters
+    ----------
+    state, status : the canonical state name and the observer's status so far.
+    rmse_value : RMS error of the estimate over the scored window [state unit].
+    truth : (n,) true values over the scored window [state unit].
+    band : convergence band [state unit] (NaN = none).
+    error, dt_s : (n,) estimate - truth [state unit] and the time each row stands for [s]. Used
+        when the truth is nearly zero (RMS(truth) < ``NEARLY_ZERO_FRACTION`` × band): then the
+        estimate is unusable
+        only if its error is also outside the band more than ``MAX_OUTSIDE_BAND_FRACTION`` of the
+        time (a transient that settles back into the band is not unusable). Without them, an RMS
+        error above the band is enough, as for any other state.
     """
     if not status.startswith("ok") or state in NO_ZERO_BASELINE or not math.isfinite(rmse_value):
         return status
@@ -373,11 +399,22 @@ def unusable_state_status(state: str, status: str, rmse_value: float, truth: np.
         return status
     zero_error = float(np.sqrt(np.mean(finite ** 2)))
     floor = band if math.isfinite(band) else 0.0
-    if rmse_value > max(UNUSABLE_RATIO * zero_error, floor):
-        ratio = rmse_value / zero_error if zero_error > 0 else math.inf
-        what = f"{ratio:.2f}×" if ratio < 10 else (f"{ratio:.0f}×" if math.isfinite(ratio) else "∞×")
-        return f"unusable (RMS error {what} that of assuming zero)"
-    return status
+    if rmse_value <= max(UNUSABLE_RATIO * zero_error, floor):
+        return status
+    if floor > 0.0 and zero_error < NEARLY_ZERO_FRACTION * floor:
+        # A (nearly) zero truth: judge the estimate against the band, not against 0.
+        if error is None:
+            return f"unusable (RMS error {rmse_value / floor:.2g}× its convergence band; truth nearly 0)"
+        weight = np.ones(error.shape) if dt_s is None else np.asarray(dt_s, float)
+        scored = np.isfinite(truth)
+        total = float(np.sum(weight * scored))
+        outside = float(np.sum(weight * (scored & ~(np.abs(error) <= floor)))) / total if total > 0 else math.nan
+        if not outside > MAX_OUTSIDE_BAND_FRACTION:
+            return status
+        return f"unusable (error outside its convergence band {_percent(outside)} % of the time; truth nearly 0)"
+    ratio = rmse_value / zero_error
+    what = f"{ratio:.2f}×" if ratio < 10 else f"{ratio:.0f}×"
+    return f"unusable (RMS error {what} that of assuming zero)"
 
 
 def usability_status(status: str, missing: float, saturated: float) -> str:
@@ -525,7 +562,7 @@ def score(
                     row.update({k: f(a) for k, f in METRICS.items()})
                     row["n_scored"] = int(a.t_s.size)
                     row["status"] = unusable_state_status(state, str(row["status"]), row["rmse"],
-                                                          a.truth, band)
+                                                          a.truth, band, a.error, a.dt_s)
                     missing.append(missing_fraction(a))
                     if state in declared:
                         saturated.append(bound_fraction(a, declared[state]))

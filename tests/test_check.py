@@ -9,10 +9,13 @@ import subprocess
 import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
+from types import SimpleNamespace
 
+import numpy as np
 import pandas as pd
 import pytest
 
+from harness import scoring
 from harness.check import CheckResult, evaluate
 from harness.check_junit import junit_xml
 from harness.check_rules import (
@@ -404,3 +407,44 @@ def test_cli_check_with_a_malformed_baseline_exits_2_with_one_line_before_any_wo
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and "base.csv" in lines[0] and "duplicate row s1/obs_a/beta_rad on lines 2, 8" in lines[0]
     assert "Traceback" not in res.stderr and not (tmp_path / "never").exists()
+
+
+# ---- the "unusable" verdict on a state whose truth is zero -------------------------------------------------
+
+def _score_rho(truth_rho: np.ndarray, est_rho: np.ndarray, t: np.ndarray) -> str:
+    """Status of one curvature estimate scored by ``harness.scoring.score`` (band 1e-3 1/m)."""
+    truth = pd.DataFrame({"t_s": t, "rho_1pm": truth_rho})
+    est = pd.DataFrame({"t_s": t, "observer": "o", "state": "rho_1pm", "value": est_rho})
+    run = SimpleNamespace(status="ok", us_per_step=1.0, certified=False, design_reason="", n_steps=t.size)
+    m = scoring.score(truth, est, scenario="s", runs={"o": run})
+    [status] = m["status"]
+    return str(status)
+
+
+def test_zero_truth_transient_that_settles_in_the_band_is_not_unusable():
+    """Straight road (curvature exactly 0): a 4.5e-3 1/m transient for 1.2 s of 5 s (RMS 2.2x the
+    1e-3 band), then 2e-5 for good, is an estimate that settles in its band, not one "∞× worse
+    than assuming zero"; the same estimate wandering 0.05 1/m all the time is unusable."""
+    t = np.round(np.arange(0.0, 5.0, 0.01), 9)
+    zero = np.zeros_like(t)
+    settles = np.where((t > 1.0) & (t < 2.2), 4.5e-3, 2e-5)
+    assert np.sqrt(np.mean(settles**2)) > 2e-3  # above the band: the old rule said "unusable (∞×)"
+    assert _score_rho(zero, settles, t) == "ok"
+    wanders = 0.05 * np.sin(3.0 * t)
+    status = _score_rho(zero, wanders, t)
+    assert status.startswith("unusable (error outside its convergence band 9") and "∞" not in status, status
+    # Inside the band all the time: ok whatever its ratio to the zero truth.
+    assert _score_rho(zero, np.full_like(t, 5e-4), t) == "ok"
+
+
+def test_nonzero_truth_keeps_the_worse_than_assuming_zero_rule():
+    """A moving truth (RMS 0.01 1/m, ten bands) is judged as before: an estimate with 2.5x the RMS of
+    the estimate 0 is unusable with that ratio, one at half of it is ok."""
+    t = np.round(np.arange(0.0, 5.0, 0.01), 9)
+    truth = np.full_like(t, 0.01)
+    assert _score_rho(truth, truth + 0.025, t) == "unusable (RMS error 2.50× that of assuming zero)"
+    assert _score_rho(truth, truth + 0.005, t) == "ok"
+    # Small but not nearly zero (RMS half the band): a transient above the band still counts against 0.
+    small = np.full_like(t, 5e-4)
+    settles = small + np.where((t > 1.0) & (t < 2.2), 4.5e-3, 2e-5)
+    assert _score_rho(small, settles, t) == "unusable (RMS error 4.39× that of assuming zero)"
