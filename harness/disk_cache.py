@@ -4,7 +4,8 @@ Location: ``$ROADTRUTH_CACHE`` if set (the CLI's ``--cache-dir`` sets it for the
 worker processes included), else the user cache folder of the platform
 (``platformdirs.user_cache_dir("roadtruth")``, e.g. ``~/.cache/roadtruth`` on Linux). Nothing is
 ever written into the working directory. Each kind of entry has a sub-folder: ``designs`` (LMI
-designs, :mod:`observers.lmi`) and ``stress-cases`` (finished sweep cases, :mod:`harness.stress`).
+designs, :mod:`observers.lmi`), ``stress-cases`` (finished sweep cases, :mod:`harness.stress`) and
+``design-warmups`` (which parallel runs already had their designs solved, :func:`presolve_designs`).
 
 Entry format: ``<key>.json`` (canonical JSON text) and beside it ``<key>.sha256``, the SHA-256 of
 ``key + "\\n" + text``. :func:`read_entry` returns an entry only when the digest matches the bytes
@@ -172,15 +173,40 @@ def solve_designs(warmup: DesignWarmup) -> int:
     return n
 
 
+#: Sub-folder of warm-up records: "these designs were put in this cache by this code".
+WARMUP_KIND = "design-warmups"
+
+
+def warmup_key(warmup: DesignWarmup) -> str:
+    """Hash of the warm-up and of every file of the installed roadtruth packages (scenarios, vehicles,
+    observer code: anything a design depends on), and of whether shipped designs are read."""
+    from harness.stress_cache import code_fingerprint
+
+    text = canonical_json({"warmup": repr(warmup), "code": code_fingerprint(),
+                           "shipped": os.environ.get("ROADTRUTH_SHIPPED_DESIGNS", "")})
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
 def presolve_designs(submit: Callable[[Callable[[Any], Any], Any], Any], warmup: DesignWarmup) -> None:
     """Run :func:`solve_designs` through ``submit(fn, arg) -> future`` (``WorkerPool.submit_call``,
-    ``distributed.Client.submit``) and wait for it; a failure (even a crashed worker) is ignored."""
+    ``distributed.Client.submit``) and wait for it; a failure (even a crashed worker) is ignored.
+
+    The warm-up holds every worker back until one worker's observer host has started, so it runs
+    only when this cache has not been warmed for the same warm-up by the same code (a record in
+    ``design-warmups``). A record outlives a design deleted by hand, or a vehicle file outside the
+    package edited since: then workers may solve a design twice, as without the warm-up; results
+    never depend on it (designs are keyed by their content).
+    """
     if not warmup.observers or not warmup.scenarios:
         return
+    key = warmup_key(warmup)
+    if read_entry(cache_folder(WARMUP_KIND), key) is not None:
+        return
     try:
-        submit(solve_designs, warmup).result()
+        n = submit(solve_designs, warmup).result()
     except Exception:  # noqa: BLE001 - the tasks design for themselves then, as without the warm-up
-        pass
+        return
+    write_entry(cache_folder(WARMUP_KIND), key, {"designs": n})
 
 
 __all__ = ["APP_NAME", "CACHE_ENV", "DesignWarmup", "cache_folder", "cache_root", "canonical_json", "entry_digest",

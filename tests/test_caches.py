@@ -209,6 +209,8 @@ def test_parallel_workers_on_a_fresh_cache_solve_each_design_once(cache_root: Pa
     par = run_stress(out=tmp_path / "par", jobs=2, dask=dask, **kw)  # type: ignore[arg-type]
     solves = _solves(log)
     assert len(solves) == 1, solves  # lpv_wang's one design (kf_bicycle has none), by one process
+    # the warm-up is recorded, so a later parallel run on this cache does not hold its workers back
+    assert len(list((cache_root / "design-warmups").glob("*.json"))) == 1
     # A second, serial sweep on another empty cache solves it again (the logger does count) and
     # gives the same rows: a design read back from the cache is the design that was solved.
     monkeypatch.setenv(CACHE_ENV, str(tmp_path / "cache2"))
