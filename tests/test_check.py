@@ -448,3 +448,75 @@ def test_nonzero_truth_keeps_the_worse_than_assuming_zero_rule():
     small = np.full_like(t, 5e-4)
     settles = small + np.where((t > 1.0) & (t < 2.2), 4.5e-3, 2e-5)
     assert _score_rho(small, settles, t) == "unusable (RMS error 4.39× that of assuming zero)"
+
+
+# ---- the shipped gate on the current code ----------------------------------------------------------------
+
+#: Observers whose rules broke when the truth physics changed (NEES, coverage, the "∞×" curvature
+#: verdict) and one that is honestly unusable on some states (not gated there).
+SUBSET_OBSERVERS = "ekf_bicycle,ukf_bicycle,interval_wang_printed,ts_yacine,hgo_gnss_kinematic"
+
+
+def test_shipped_gate_passes_on_a_representative_subset(tmp_path: Path):
+    res = _cli("--scenario", "step_steer,brake_in_turn", "--observer", SUBSET_OBSERVERS, "--out", str(tmp_path / "c"))
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr
+    table = pd.read_csv(tmp_path / "c" / "check.csv", keep_default_na=False)
+    judged = table[table.kind == "threshold"]
+    assert set(judged.verdict) == {"pass"}, judged[judged.verdict != "pass"]
+
+    def passed(scenario: str, observer: str, state: str, metric: str) -> bool:
+        row = judged[(judged.scenario == scenario) & (judged.observer == observer) & (judged.state == state)
+                     & (judged.metric == metric)]
+        return len(row) >= 1 and set(row.verdict) == {"pass"}
+
+    assert passed("step_steer", "ekf_bicycle", "beta_rad", "nees_mean")
+    assert passed("brake_in_turn", "interval_wang_printed", "beta_rad", "coverage")
+    assert passed("brake_in_turn", "ts_yacine", "rho_1pm", "status") and passed("brake_in_turn", "ts_yacine",
+                                                                                "rho_1pm", "rmse")
+    assert passed("brake_in_turn", "hgo_gnss_kinematic", "x_m", "rmse")
+    # Honestly unusable there: the gate does not demand ok of it, and says so in a comment.
+    assert judged[(judged.observer == "hgo_gnss_kinematic") & (judged.state == "vx_mps")
+                  & judged.metric.isin(["status", "rmse"])].empty
+    metrics = pd.read_csv(tmp_path / "c" / "metrics.csv")
+    assert metrics.loc[(metrics.observer == "hgo_gnss_kinematic") & (metrics.state == "vx_mps"),
+                       "status"].str.startswith("unusable").all()
+    # Straight road: the curvature transient of the steer step settles in its band (ok, not "∞×"); it
+    # is not gated because under another seed it stays outside the band (unusable), see ci.yaml.
+    rho = (metrics.scenario == "step_steer") & (metrics.observer == "ts_yacine") & (metrics.state == "rho_1pm")
+    assert list(metrics.loc[rho, "status"]) == ["ok"]
+    # The gate trips when a gated estimate breaks: ten times the RMSE, or a status that is not ok.
+    from harness.check_rules import load_thresholds
+
+    spec = load_thresholds(DEFAULT_THRESHOLDS)
+    worse = metrics.assign(rmse=metrics.rmse * 10.0)
+    rmse_fails = [o for o in evaluate(worse, spec) if o.kind == "threshold" and o.metric == "rmse"
+                  and o.verdict == "fail"]
+    assert len(rmse_fails) == (judged.metric == "rmse").sum() > 20
+    broken = metrics.copy()
+    broken.loc[(broken.observer == "ts_yacine") & (broken.scenario == "step_steer"), "status"] = "diverged"
+    assert any(o.metric == "status" and o.observer == "ts_yacine" and o.verdict == "fail"
+               for o in evaluate(broken, spec))
+
+
+def test_shipped_gate_covers_every_registered_observer():
+    """Each registered observer is gated on some ci scenario (status and rmse) or named in a comment
+    saying why not (not applicable, unusable, diverged)."""
+    from observers.registry import observer_info
+
+    spec = load_thresholds(DEFAULT_THRESHOLDS)
+    text = DEFAULT_THRESHOLDS.read_text()
+    gated = {metric: {o for r in spec.rules if r.metric == metric for o in r.observer} for metric in ("status", "rmse")}
+    for info in observer_info():
+        name = info["name"]
+        if name in gated["status"]:
+            assert name in gated["rmse"], name
+        else:
+            assert re.search(rf"# {re.escape(name)}[ :].*(not applicable|not gated)", text), name
+    assert len(gated["status"]) > 30 and len(gated["rmse"]) == len(gated["status"])
+
+
+@pytest.mark.slow
+def test_shipped_gate_passes_on_the_full_ci_suite(tmp_path: Path):
+    res = _cli("--out", str(tmp_path / "full"))
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr
+    assert "check passed: 0 of" in res.stdout
