@@ -78,7 +78,6 @@ from typing import Any, Protocol
 
 import numpy as np
 import pandas as pd
-from scipy.stats import chi2
 
 from harness.vehicle import G
 
@@ -225,6 +224,8 @@ def nees_mean(a: Aligned) -> float:
 
 def nees_band(n: int) -> tuple[float, float]:
     """Two-sided 95 % band of the mean of n independent chi^2(1) variables."""
+    from scipy.stats import chi2  # here, not at import: scipy.stats costs ~0.5 s per process start
+
     lo, hi = chi2.ppf([0.025, 0.975], n) / n
     return float(lo), float(hi)
 
