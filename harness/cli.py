@@ -264,6 +264,15 @@ def _cmd_init(a: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_mjcf(a: argparse.Namespace) -> int:
+    from harness.mjcf_export import write_model
+
+    write_model(a.vehicle, a.scenario, Path(a.out))
+    print(f"wrote the MuJoCo model of {a.vehicle}{' on ' + a.scenario if a.scenario else ''} to {a.out} "
+          "(open it with: python -m mujoco.viewer --mjcf " + str(a.out) + ")")
+    return EXIT_OK
+
+
 def _cmd_schema(a: argparse.Namespace) -> int:
     from harness.config_schema import schema_text, write_schema
 
@@ -411,6 +420,14 @@ def build_parser() -> argparse.ArgumentParser:
     sc.add_argument("format", choices=_SCHEMA_FORMATS, metavar="FORMAT", help=", ".join(_SCHEMA_FORMATS))
     sc.add_argument("--out", help="write the schema to this file instead of printing it")
     sc.set_defaults(func=_cmd_schema)
+
+    mj = sub.add_parser("mjcf", help="write the MuJoCo model of a vehicle (and a scenario's road) for MuJoCo's "
+                        "own viewer")
+    mj.add_argument("vehicle", help="vehicle set name or YAML path")
+    mj.add_argument("--scenario", help="scenario name or YAML path: adds its road, markings, friction patches, "
+                    "lead car and a 'start' keyframe at its initial pose and speed")
+    mj.add_argument("--out", required=True, help="the .xml file to write (a new file, or one this command wrote)")
+    mj.set_defaults(func=_cmd_mjcf)
     return p
 
 
