@@ -244,11 +244,31 @@ class TableWriter:
 
 # ---- reading ---------------------------------------------------------------------------------------
 
-def read_table(path: Path, **csv_options: Any) -> pd.DataFrame:
-    """A table file as a frame (``csv_options`` go to ``pandas.read_csv``; Parquet ignores them)."""
+def read_table(path: Path, columns: Sequence[str] | None = None, **csv_options: Any) -> pd.DataFrame:
+    """A table file as a frame (``csv_options`` go to ``pandas.read_csv``; Parquet ignores them).
+
+    ``columns`` reads only those columns, in the file's order (Parquet stores columns apart, so the
+    others are never decoded; CSV parses only those cells): one state of a wide estimates table of
+    many observers is a few percent of it. The values are the same as in the whole table's columns.
+    """
     if format_of(path) == "parquet":
-        return pd.read_parquet(path)
+        if columns is None:
+            return pd.read_parquet(path)
+        wanted = set(columns)
+        return pd.read_parquet(path, columns=[c for c in table_columns(path) if c in wanted])
+    if columns is not None:
+        csv_options = {**csv_options, "usecols": list(columns)}
     return pd.read_csv(path, **csv_options)
+
+
+def table_columns(path: Path) -> list[str]:
+    """The column names of a table file in order, without reading its rows (Parquet: the schema;
+    CSV: the header line)."""
+    if format_of(path) == "parquet":
+        import pyarrow.parquet as pq
+
+        return [str(c) for c in pq.read_schema(path).names]
+    return [str(c) for c in pd.read_csv(path, nrows=0).columns]
 
 
 def read_table_as_text(path: Path) -> pd.DataFrame:
@@ -300,6 +320,16 @@ def estimates_wide(long: pd.DataFrame, shared: Sequence[str] = ()) -> pd.DataFra
             if v is not None and np.isfinite(v).any():
                 columns[f"{obs}.{state}_{s}"] = v
     return pd.concat([base, pd.DataFrame(columns)], axis=1)
+
+
+def state_columns(columns: Sequence[str], states: Sequence[str]) -> list[str]:
+    """The columns of a wide estimates table that :func:`estimates_long` with ``states`` reads: the
+    shared ones (``t_s``, ``segment``, …) and each observer's value, bound and covariance columns of
+    those states, in ``columns`` order (what to read of a file for one figure)."""
+    spec = estimate_columns(columns)
+    prefixed = {c for cols in spec.values() for c in cols.values()}
+    wanted = {c for (_, state), cols in spec.items() if state in states for c in cols.values()}
+    return [str(c) for c in columns if str(c) in wanted or str(c) not in prefixed]
 
 
 def estimate_columns(columns: Iterable[str]) -> dict[tuple[str, str], dict[str, str]]:

@@ -273,3 +273,69 @@ def test_each_state_is_ranked_once_per_metric_per_page(run_dir: Path, monkeypatc
     ReportBuilder(run).build()
     assert calls, "nothing was ranked"
     assert len(calls) == len(set(calls)) == len(run.scored_states) * len(leaderboard.SWITCHABLE)
+
+
+def _wide_run(tmp_path: Path, fmt: str) -> Path:
+    """The synthetic run with wide estimates in ``fmt`` and 20 more observers' columns of states no
+    figure draws (as in a long log's replay, where they are most of the table), one observer silent
+    on a stretch and one that gives no β at all."""
+    from harness.table_io import estimates_wide, write_table
+
+    run = make_run_folder(tmp_path / fmt)
+    for name in ("step_steer", "ice_patch"):
+        folder = run / name
+        wide = estimates_wide(pd.read_csv(folder / "estimates.csv"))
+        (folder / "estimates.csv").unlink()
+        n = len(wide)
+        gap = slice(n // 3, n // 2)
+        for c in ("ekf.beta_rad", "ekf.beta_rad_var"):
+            wide.loc[wide.index[gap], c] = np.nan  # ekf did not run on a stretch: no rows there
+        wide["quiet.beta_rad"] = np.nan
+        for k in range(20):
+            wide[f"extra{k}.fy_f_N"] = np.linspace(0.0, 1000.0 + k, n)
+            wide[f"extra{k}.fy_f_N_var"] = 4.0
+        write_table(wide, folder, "estimates", fmt)
+    return run
+
+
+@pytest.mark.parametrize("fmt", ["csv", "parquet"])
+def test_figures_read_one_state_of_a_wide_table_and_draw_what_the_long_frame_draws(
+        tmp_path: Path, fmt: str, monkeypatch: pytest.MonkeyPatch):
+    """A long log's wide estimates table (every observer's every state) is never read whole: each
+    figure reads ``t_s`` and its own state's columns only, and draws exactly what the long frame of
+    the whole table draws (gaps and an observer without the state included)."""
+    import harness.report.rundata as rundata
+    from harness.report.figures import observer_styles, state_figure
+    from harness.table_io import estimates_long, read_table, table_path
+
+    run_dir = _wide_run(tmp_path, fmt)
+    reads: list[list[str] | None] = []
+    real = rundata.read_table
+
+    def recording(path, columns=None, **options):
+        if Path(path).stem == "estimates" and not options:
+            reads.append(None if columns is None else list(columns))
+        return real(path, **options) if columns is None else real(path, columns=columns, **options)
+
+    monkeypatch.setattr(rundata, "read_table", recording)
+    run = RunData.load(run_dir)
+    assert "fig-step_steer-beta_rad" in ReportBuilder(run).build()
+    beta = ["t_s", "lpv_interval.beta_rad", "lpv_interval.beta_rad_lo", "lpv_interval.beta_rad_hi",
+            "ekf.beta_rad", "ekf.beta_rad_var", "quiet.beta_rad"]
+    yaw = ["t_s", "lpv_interval.yaw_rate_radps", "lpv_interval.yaw_rate_radps_lo",
+           "lpv_interval.yaw_rate_radps_hi"]
+    assert reads and None not in reads, "a figure read the whole estimates table"
+    assert sorted(map(sorted, reads)) == sorted([sorted(beta), sorted(yaw)] * 2)  # per scenario
+
+    styles = observer_styles(run.observer_names)
+    for name in run.scenario_names:
+        files = run.scenario(name)
+        whole = estimates_long(read_table(table_path(files.folder, "estimates")))
+        for state in ("beta_rad", "yaw_rate_radps"):
+            series = files.series_of(state)
+            assert [s.observer for s in series] == (["lpv_interval", "ekf"] if state == "beta_rad" else ["lpv_interval"])
+            assert state_figure(state, files.truth, series, styles, files.events) == \
+                state_figure(state, files.truth, whole, styles, files.events)
+        ekf = files.series_of("beta_rad")[1]
+        n = len(files.truth)
+        assert ekf.t_s.size == n - (n // 2 - n // 3) and np.isnan(ekf.lo).all()

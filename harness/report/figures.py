@@ -9,11 +9,13 @@ the page light. Angles are shown in degrees; the CSV files stay in SI units.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from harness.report.rundata import ObserverSeries, observer_series
 from harness.report.styles import (  # noqa: F401 - re-exported: other pages import styles from here
     PALETTE,
     TRUTH_COLOUR,
@@ -169,11 +171,12 @@ def _error_range(errors: list[np.ndarray], truth_span: float, unit: str) -> tupl
 
 
 def state_figure(
-    state: str, truth: pd.DataFrame, estimates: pd.DataFrame, styles: dict[str, Any],
+    state: str, truth: pd.DataFrame, estimates: pd.DataFrame | Sequence[ObserverSeries], styles: dict[str, Any],
     events: list[dict[str, Any]], scored_until_s: float | None = None, unscored_reason: str = "",
 ) -> dict[str, Any]:
     """Truth and every observer's estimate (with bounds as a band) on top, the errors below.
 
+    ``estimates`` is a long estimates frame or each observer's series of ``state`` (``ScenarioFiles.series_of``).
     ``styles`` maps observer -> ``LineStyle`` (see ``observer_style``). Axes are focused on the
     truth (``focus_range``) with buttons to show everything. After ``scored_until_s`` (a spin-out,
     a roll-over) the plot is shaded: that part is drawn but not scored.
@@ -189,18 +192,14 @@ def state_figure(
                        "line": {"color": TRUTH_COLOUR, "width": 2.2}, "xaxis": "x", "yaxis": "y"})
     else:
         t_truth = y_truth = np.empty(0)
-    rows = estimates[estimates["state"] == state] if len(estimates) else estimates
+    series = observer_series(estimates, state) if isinstance(estimates, pd.DataFrame) else estimates
     values, errors, t_ends = [], [], [float(t_truth[-1])] if t_truth.size else []
-    for obs, g in rows.groupby("observer", sort=False):
-        style = styles.get(str(obs)) or observer_style(str(obs))
-        g = g.sort_values("t_s", kind="stable")
-        t = g["t_s"].to_numpy(float)
-        v = g["value"].to_numpy(float)
+    for one in series:
+        obs, t, v, lo, hi = one.observer, one.t_s, one.value, one.lo, one.hi
+        style = styles.get(obs) or observer_style(obs)
         if t.size:
             t_ends.append(float(t[-1]))
         values.append(v * scale)
-        lo = g["lo"].to_numpy(float) if "lo" in g else np.full(t.size, np.nan)
-        hi = g["hi"].to_numpy(float) if "hi" in g else np.full(t.size, np.nan)
         if np.isfinite(lo).any() and np.isfinite(hi).any():
             ilo, ihi = decimate(t, lo), decimate(t, hi)
             band_x = np.concatenate([t[ihi], t[ilo][::-1]])

@@ -22,7 +22,18 @@ import pandas as pd
 
 from harness.errors import InputError
 from harness.strict_yaml import short_repr
-from harness.table_io import estimates_long, format_of, is_wide, read_table, table_path, write_csv_table
+from harness.table_io import (
+    BOUND_SUFFIXES,
+    estimate_columns,
+    estimates_long,
+    format_of,
+    is_wide,
+    read_table,
+    state_columns,
+    table_columns,
+    table_path,
+    write_csv_table,
+)
 
 
 class RunFolderError(InputError):
@@ -178,15 +189,16 @@ class ScenarioFiles:
             inside_folder(self.root, path)
         return path
 
-    def _table(self, name: str, required: tuple[str, ...], text: tuple[str, ...] = ()) -> pd.DataFrame:
-        """The table ``name`` of the scenario (``name.csv`` or ``name.parquet``); every column but
-        ``text`` must hold numbers (empty = NaN)."""
+    def _table(self, name: str, required: tuple[str, ...], text: tuple[str, ...] = (),
+               columns: list[str] | None = None) -> pd.DataFrame:
+        """The table ``name`` of the scenario (``name.csv`` or ``name.parquet``), only ``columns`` of
+        it if given; every column read but ``text`` must hold numbers (empty = NaN)."""
         found = table_path(self.folder, name)
         path = self._path(found.name) if found is not None else None
         if path is None:
             return pd.DataFrame()
         try:
-            frame = read_table(path)
+            frame = read_table(path, columns=columns)
         except pd.errors.EmptyDataError:
             raise RunFolderError("empty file (no header)", source=str(path)) from None
         except (ValueError, pd.errors.ParserError, UnicodeDecodeError, OSError) as e:
@@ -231,34 +243,63 @@ class ScenarioFiles:
         return table if table.empty or not is_wide(table) else estimates_long(table)
 
     @cached_property
-    def _estimates_table(self) -> pd.DataFrame:
-        """The estimates table as written: wide, or long for a run written before the wide form."""
+    def _estimates_header(self) -> list[str] | None:
+        """The column names of the estimates table (None when the scenario has none), read without
+        its rows."""
         found = table_path(self.folder, "estimates")
         path = self._path(found.name) if found is not None else None  # never read outside the folder
         if path is None:
-            return pd.DataFrame()
+            return None
         try:
-            head = read_table(path, nrows=0) if format_of(path) == "csv" else None
+            return table_columns(path)
         except pd.errors.EmptyDataError:
             raise RunFolderError("empty file (no header)", source=str(path)) from None
         except (ValueError, pd.errors.ParserError, UnicodeDecodeError, OSError) as e:
             first = str(e).splitlines()[0] if str(e) else type(e).__name__
-            raise RunFolderError(f"unreadable CSV ({first})", source=str(path)) from None
-        if head is not None and not is_wide(head):  # a run written before the wide form
-            return self._table("estimates", required=("t_s", "observer", "state", "value"),
-                               text=("observer", "state"))
+            kind = "Parquet" if format_of(path) == "parquet" else "CSV"
+            raise RunFolderError(f"unreadable {kind} ({first})", source=str(path)) from None
+
+    def _is_long(self) -> bool:
+        header = self._estimates_header or []
+        return "observer" in header or "state" in header  # a run written before the wide form
+
+    @cached_property
+    def _estimates_table(self) -> pd.DataFrame:
+        """The estimates table as written: wide, or long for a run written before the wide form."""
+        if self._estimates_header is None:
+            return pd.DataFrame()
+        if self._is_long():
+            return self._long_table
         return self._table("estimates", required=("t_s",))
+
+    @cached_property
+    def _long_table(self) -> pd.DataFrame:
+        return self._table("estimates", required=("t_s", "observer", "state", "value"), text=("observer", "state"))
 
     def estimates_of(self, state: str) -> pd.DataFrame:
         """The long rows of one state (``observer``/``state`` categorical): what one figure plots.
 
-        A wide table is turned long one state at a time, so a long log's report never holds every
-        observer's every state in long form (millions of rows).
+        Of a wide table only that state's columns (and the shared ``t_s``, ``segment``) are read
+        from the file, and the table is never held whole: a long log's wide table of every
+        observer's every state is hundreds of MB as a frame, one state's columns a few percent of it.
         """
-        table = self._estimates_table
-        if table.empty:
-            return table
+        header = self._estimates_header
+        if header is None:
+            return pd.DataFrame()
+        if self._is_long():
+            return estimates_long(self._long_table, states=[state], categorical=True)
+        table = self._table("estimates", required=("t_s",), columns=state_columns(header, [state]))
         return estimates_long(table, states=[state], categorical=True)
+
+    def series_of(self, state: str) -> list[ObserverSeries]:
+        """Each observer's series of one state (:class:`ObserverSeries`): what one figure draws.
+        Of a wide table only that state's columns are read, and no long frame is built."""
+        header = self._estimates_header
+        if header is None:
+            return []
+        if self._is_long():
+            return observer_series(estimates_long(self._long_table, states=[state], categorical=True), state)
+        return wide_series(self._table("estimates", required=("t_s",), columns=state_columns(header, [state])), state)
 
     @cached_property
     def events(self) -> list[dict[str, Any]]:
@@ -268,6 +309,63 @@ class ScenarioFiles:
     @cached_property
     def info(self) -> dict[str, Any]:
         return self._json("scenario.json", {})
+
+
+@dataclass(frozen=True)
+class ObserverSeries:
+    """One observer's estimate of one state over time: what one figure draws for it. Arrays of equal
+    length, ``t_s`` [s] non-decreasing, ``value``/``lo``/``hi`` in the state's SI unit (NaN where an
+    observer gives no bound); samples where value and bounds were all missing are left out."""
+
+    observer: str
+    t_s: np.ndarray
+    value: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+
+
+def observer_series(estimates: pd.DataFrame, state: str) -> list[ObserverSeries]:
+    """The series of ``state`` in a long estimates frame, one per observer in order of appearance."""
+    rows = estimates[estimates["state"] == state] if len(estimates) else estimates
+    out = []
+    for obs, g in rows.groupby("observer", sort=False):
+        g = g.sort_values("t_s", kind="stable")
+        t = g["t_s"].to_numpy(float)
+        lo = g["lo"].to_numpy(float) if "lo" in g else np.full(t.size, np.nan)
+        hi = g["hi"].to_numpy(float) if "hi" in g else np.full(t.size, np.nan)
+        out.append(ObserverSeries(str(obs), t, g["value"].to_numpy(float), lo, hi))
+    return out
+
+
+def wide_series(table: pd.DataFrame, state: str) -> list[ObserverSeries]:
+    """The series of ``state`` in a wide estimates table, one per observer in column order: the
+    series :func:`observer_series` gives of ``estimates_long(table)``, without building that frame
+    (a long log's one state in long form is ~100 MB; these arrays are views of the table's columns
+    where no sample is dropped)."""
+    if table.empty or "t_s" not in table.columns:
+        return []
+    t_all = table["t_s"].to_numpy(float)
+    out = []
+    for (obs, st), cols in estimate_columns(table.columns).items():
+        if st != state:
+            continue
+        arrays = {k: table[cols[k]].to_numpy(float) if k in cols else None for k in ("value", *BOUND_SUFFIXES)}
+        keep = ~np.isnan(arrays["value"])  # as estimates_long: a value or any bound (±inf counts)
+        for k in BOUND_SUFFIXES:
+            if arrays[k] is not None:
+                keep |= ~np.isnan(arrays[k])
+        if not keep.any():
+            continue
+        nan = np.full(t_all.size, np.nan)
+        t, v, lo, hi = t_all, arrays["value"], arrays["lo"], arrays["hi"]
+        lo, hi = nan if lo is None else lo, nan if hi is None else hi
+        if not keep.all():
+            t, v, lo, hi = t[keep], v[keep], lo[keep], hi[keep]
+        if t.size > 1 and (np.diff(t) < 0).any():  # the long frame's stable sort by time
+            order = np.argsort(t, kind="stable")
+            t, v, lo, hi = t[order], v[order], lo[order], hi[order]
+        out.append(ObserverSeries(str(obs), t, v, lo, hi))
+    return out
 
 
 def _finite(x: Any) -> bool:

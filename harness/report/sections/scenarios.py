@@ -79,8 +79,8 @@ class ScenariosSection(Section):
             reason = next((str(e.get("label", "")) for e in reversed(tevs)
                            if until is not None and float(e["t_s"]) <= until + 1e-6), "")
             for state in states:
-                est = files.estimates_of(state)  # one state's rows at a time, never the whole long table
-                if truth.empty and est.empty:
+                est = files.series_of(state)  # one state's columns at a time, never the whole table
+                if truth.empty and not est:
                     continue
                 figures.append({"id": f"fig-{slug(name)}-{slug(state)}",
                                 "spec": state_figure(state, truth, est, page.styles, events, until, reason),
