@@ -261,6 +261,19 @@ def read_table(path: Path, columns: Sequence[str] | None = None, **csv_options: 
     return pd.read_csv(path, **csv_options)
 
 
+def read_numeric_columns(path: Path, columns: Sequence[str]) -> dict[str, np.ndarray] | None:
+    """``columns`` of a Parquet table as float64 arrays (pyarrow's own buffers where no conversion
+    is needed: no pandas frame, whose block copy doubles the memory), or None if one of them does
+    not hold numbers (the caller then reads it as a frame and says which)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(path, columns=list(columns))
+    if not all(pa.types.is_floating(f.type) or pa.types.is_integer(f.type) for f in table.schema):
+        return None
+    return {name: np.asarray(table.column(name).to_numpy(), dtype=float) for name in table.column_names}
+
+
 def table_columns(path: Path) -> list[str]:
     """The column names of a table file in order, without reading its rows (Parquet: the schema;
     CSV: the header line)."""

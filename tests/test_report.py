@@ -318,6 +318,14 @@ def test_figures_read_one_state_of_a_wide_table_and_draw_what_the_long_frame_dra
         return real(path, **options) if columns is None else real(path, columns=columns, **options)
 
     monkeypatch.setattr(rundata, "read_table", recording)
+    if hasattr(rundata, "read_numeric_columns"):
+        real_numeric = rundata.read_numeric_columns
+
+        def recording_numeric(path, columns):
+            reads.append(list(columns))
+            return real_numeric(path, columns)
+
+        monkeypatch.setattr(rundata, "read_numeric_columns", recording_numeric)
     run = RunData.load(run_dir)
     assert "fig-step_steer-beta_rad" in ReportBuilder(run).build()
     beta = ["t_s", "lpv_interval.beta_rad", "lpv_interval.beta_rad_lo", "lpv_interval.beta_rad_hi",

@@ -28,6 +28,7 @@ from harness.table_io import (
     estimates_long,
     format_of,
     is_wide,
+    read_numeric_columns,
     read_table,
     state_columns,
     table_columns,
@@ -299,7 +300,24 @@ class ScenarioFiles:
             return []
         if self._is_long():
             return observer_series(estimates_long(self._long_table, states=[state], categorical=True), state)
-        return wide_series(self._table("estimates", required=("t_s",), columns=state_columns(header, [state])), state)
+        return wide_series(self._state_columns(state_columns(header, [state])), state)
+
+    def _state_columns(self, columns: list[str]) -> dict[str, np.ndarray]:
+        """``columns`` of the wide estimates table as float arrays. Numeric Parquet columns are taken
+        from pyarrow as they are (no pandas frame: that copy doubled one figure's memory); anything
+        else goes through ``_table``'s checks, which name a column that does not hold numbers."""
+        found = table_path(self.folder, "estimates")
+        path = self._path(found.name) if found is not None else None
+        if path is not None and format_of(path) == "parquet" and "t_s" in columns:
+            try:
+                arrays = read_numeric_columns(path, columns)
+            except (ValueError, OSError) as e:
+                first = str(e).splitlines()[0] if str(e) else type(e).__name__
+                raise RunFolderError(f"unreadable Parquet ({first})", source=str(path)) from None
+            if arrays is not None:
+                return arrays
+        frame = self._table("estimates", required=("t_s",), columns=columns)
+        return {str(c): frame[c].to_numpy(float) for c in frame.columns}
 
     @cached_property
     def events(self) -> list[dict[str, Any]]:
@@ -337,19 +355,20 @@ def observer_series(estimates: pd.DataFrame, state: str) -> list[ObserverSeries]
     return out
 
 
-def wide_series(table: pd.DataFrame, state: str) -> list[ObserverSeries]:
-    """The series of ``state`` in a wide estimates table, one per observer in column order: the
-    series :func:`observer_series` gives of ``estimates_long(table)``, without building that frame
-    (a long log's one state in long form is ~100 MB; these arrays are views of the table's columns
-    where no sample is dropped)."""
-    if table.empty or "t_s" not in table.columns:
+def wide_series(table: dict[str, np.ndarray], state: str) -> list[ObserverSeries]:
+    """The series of ``state`` in a wide estimates table given as its columns, one per observer in
+    column order: the series :func:`observer_series` gives of ``estimates_long(table)``, without
+    building that frame (a long log's one state in long form is ~100 MB; these arrays are the
+    table's columns themselves where no sample is dropped)."""
+    if "t_s" not in table:
         return []
-    t_all = table["t_s"].to_numpy(float)
+    t_all = np.asarray(table["t_s"], dtype=float)
     out = []
-    for (obs, st), cols in estimate_columns(table.columns).items():
+    for (obs, st), cols in estimate_columns(table).items():
         if st != state:
             continue
-        arrays = {k: table[cols[k]].to_numpy(float) if k in cols else None for k in ("value", *BOUND_SUFFIXES)}
+        arrays = {k: np.asarray(table[cols[k]], dtype=float) if k in cols else None
+                  for k in ("value", *BOUND_SUFFIXES)}
         keep = ~np.isnan(arrays["value"])  # as estimates_long: a value or any bound (±inf counts)
         for k in BOUND_SUFFIXES:
             if arrays[k] is not None:
