@@ -13,7 +13,7 @@ Run:
   ``ok`` in every run (the others listed in a comment with their status), the ``certified == true``
   rule, the EKF/UKF sideslip NEES band per scenario (half the lowest, double the highest value),
   coverage floors (worst run - 0.10) and RMSE ceilings (1.5 × the worst run) of every state of
-  every observer that is ``ok`` in every run (``harness.check_rules.propose_rules``).
+  every observer that is ``ok`` in every run (``roadtruth.harness.jobs.check_rules.propose_rules``).
 """
 
 from __future__ import annotations
@@ -108,7 +108,7 @@ def _nees_rules(runs: list[pd.DataFrame]) -> list[str]:
 
 def propose(run_dirs: list[Path]) -> None:
     """Print the measured ``rules:`` of a thresholds file from run folders (first = default seeds)."""
-    from harness.check_rules import propose_rules
+    from roadtruth.harness.jobs.check_rules import propose_rules
 
     runs = [pd.read_csv(d / "metrics.csv") for d in run_dirs]
     states = tuple(dict.fromkeys(runs[0]["state"].dropna()))

@@ -41,9 +41,9 @@ def main() -> None:
         cases: dict[str, list[str]] = {
             "python -c pass": [py, "-c", "pass"],
             "python -c 'import numpy'": [py, "-c", "import numpy"],
-            "roadtruth scenarios": [py, "-m", "harness.cli", "scenarios"],
-            "roadtruth observers": [py, "-m", "harness.cli", "observers"],
-            "roadtruth simulate step_steer": [py, "-m", "harness.cli", "simulate", "step_steer", "--out", ""],
+            "roadtruth scenarios": [py, "-m", "roadtruth.harness.cli", "scenarios"],
+            "roadtruth observers": [py, "-m", "roadtruth.harness.cli", "observers"],
+            "roadtruth simulate step_steer": [py, "-m", "roadtruth.harness.cli", "simulate", "step_steer", "--out", ""],
         }
         # One untimed round first: numba's on-disk cache and the OS file cache are warm, as for a user's
         # second command of the day (the first after an install also compiles).

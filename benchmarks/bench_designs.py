@@ -38,7 +38,7 @@ SHOWN = {
 def textbook_car() -> Any:
     """The car assumed for Nguyen's vehicle example: the sedan with the textbook mass, inertia, geometry
     and 160 kN/rad on both axles (the Magic Formula ``By`` rescaled so that ``By Cy F_z`` equals it)."""
-    from harness.vehicle import load_vehicle
+    from roadtruth.harness.truth.vehicle import load_vehicle
 
     sedan = load_vehicle("sedan")
     m, lf, lr, g = 1573.0, 1.10, 1.58, 9.81
@@ -79,8 +79,8 @@ def line(vehicle: str, observer: str, design: Any, note: str = "") -> str:
 def main() -> None:
     import argparse
 
-    from harness.vehicle import load_vehicle
-    from observers.registry import available_observers, create
+    from roadtruth.harness.truth.vehicle import load_vehicle
+    from roadtruth.observers.registry import available_observers, create
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--vehicles", default=",".join(VEHICLES), help="comma-separated vehicles of the main table")

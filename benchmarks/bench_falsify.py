@@ -31,7 +31,7 @@ parameters:
 def main() -> None:
     import pandas as pd
 
-    from harness.falsify import run_falsify
+    from roadtruth.harness.jobs.falsify import run_falsify
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--budget", type=int, default=24)

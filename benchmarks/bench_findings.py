@@ -2,9 +2,9 @@
 paragraphs of docs/OBSERVERS.md (interval, unknown-input, Takagi–Sugeno, switched interval observers).
 
 Run: ``python benchmarks/bench_findings.py [--seed N]``. Each case is one scenario simulated and sensed
-exactly as ``roadtruth run --no-render`` does (``harness.pipeline`` stages: the scenario's own seed
+exactly as ``roadtruth run --no-render`` does (``roadtruth.harness.jobs.pipeline`` stages: the scenario's own seed
 unless ``--seed``, so the truth and the sensor noise are those of the default run), then the observers
-run with the options shown and are scored by ``harness.scoring.score`` (the ``metrics.csv`` rows).
+run with the options shown and are scored by ``roadtruth.harness.evaluation.scoring.score`` (the ``metrics.csv`` rows).
 Printed, per case: seeds, the metrics rows quoted in the docs, and derived figures (interval width
 ratios, effective tire stiffness ``F_y/α`` relative to the static axle stiffness, inclusion-loss
 windows, lane-camera curvature error). About a minute on a quiet core; nothing is written to disk.
@@ -50,12 +50,12 @@ def evaluate(scenario: str, observers: list[str], *, sensors: str | None = None,
     different ``options``, evaluate twice and concatenate)."""
     import pandas as pd
 
-    from harness.estimate import run_observers
-    from harness.pipeline import prepare_scenario, scenario_seeds, sensor_config
-    from harness.scoring import score
-    from harness.sensors import emulate
-    from harness.simulate import simulate
-    from harness.truth_events import scored_until_of
+    from roadtruth.harness.evaluation.estimate import run_observers
+    from roadtruth.harness.evaluation.scoring import score
+    from roadtruth.harness.jobs.pipeline import prepare_scenario, scenario_seeds, sensor_config
+    from roadtruth.harness.sensors import emulate
+    from roadtruth.harness.truth.simulate import simulate
+    from roadtruth.harness.truth.truth_events import scored_until_of
 
     sc = prepare_scenario(scenario, None, None)
     veh = sc.vehicle_params()
@@ -119,7 +119,7 @@ def lane_rate_errors(case: Case, lipschitz: tuple[float, ...] = (0.3, 1.0, 3.0, 
     ``d y_L / dt`` at each sample's arrival (latency included; restarted after a gap > 0.2 s, the first 2 s after
     each start left out),
     per Lipschitz constant ``L`` [m/s^3]: the error of the algebraic ``v_y`` premise of Yacine et al."""
-    from observers.levant_differentiator import LevantDifferentiator
+    from roadtruth.observers.levant_differentiator import LevantDifferentiator
 
     m = case.measurements
     y = m["y_lane_m"].to_numpy(float)

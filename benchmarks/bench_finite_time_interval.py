@@ -51,8 +51,8 @@ def main() -> None:
     args = ap.parse_args()
     os.environ.setdefault("ROADTRUTH_CACHE", tempfile.mkdtemp(prefix="roadtruth-bench-"))
 
-    from harness.vehicle import load_vehicle
-    from observers.registry import create
+    from roadtruth.harness.truth.vehicle import load_vehicle
+    from roadtruth.observers.registry import create
 
     carla, sedan = load_vehicle("carla_bessafa"), load_vehicle("sedan")
     print("== certification")
@@ -85,7 +85,7 @@ def main() -> None:
 
     import pandas as pd
 
-    from harness.pipeline import run_suite
+    from roadtruth.harness.jobs.pipeline import run_suite
 
     scen = [s for s in args.scenarios.split(",") if s]
     out = Path(tempfile.mkdtemp(prefix="roadtruth-ftie-")) / "run"

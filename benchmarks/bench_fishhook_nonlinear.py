@@ -33,7 +33,7 @@ BIG = 0.1  # rad: where the dissertation says the linear tire model fails
 
 def _scenario(amplitude_deg: float, folder: Path):
     """The shipped fishhook with the road-wheel amplitude replaced (a scenario file in ``folder``)."""
-    from harness.scenario import load_scenario
+    from roadtruth.harness.truth.scenario import load_scenario
     src = Path(__file__).resolve().parents[1] / "harness" / "scenarios" / "fishhook.yaml"
     text = src.read_text().replace("amplitude_deg: 7.7", f"amplitude_deg: {amplitude_deg}")
     name = f"fishhook_{amplitude_deg:g}".replace(".", "_")
@@ -44,11 +44,11 @@ def _scenario(amplitude_deg: float, folder: Path):
 
 def run_one(sc, vehicle_name: str, seed: int) -> tuple[dict[str, float], dict[str, dict[str, float]]]:
     """Truth summary and per-observer errors [deg] for one scenario."""
-    from harness.estimate import run_observers
-    from harness.sensors import load_sensor_config
-    from harness.sensors.suite import emulate
-    from harness.simulate import simulate
-    from harness.vehicle import load_vehicle
+    from roadtruth.harness.evaluation.estimate import run_observers
+    from roadtruth.harness.sensors import load_sensor_config
+    from roadtruth.harness.sensors.suite import emulate
+    from roadtruth.harness.truth.simulate import simulate
+    from roadtruth.harness.truth.vehicle import load_vehicle
 
     sc = sc.with_vehicle(vehicle_name)
     vehicle = load_vehicle(vehicle_name)
@@ -88,8 +88,8 @@ def run_one(sc, vehicle_name: str, seed: int) -> tuple[dict[str, float], dict[st
 
 def us_per_step(vehicle_name: str, n: int = 20000) -> dict[str, float]:
     """Cost of each nonlinear observer on synthetic inputs [us/step] (design cached, numba warm)."""
-    from harness.vehicle import load_vehicle
-    from observers.registry import create
+    from roadtruth.harness.truth.vehicle import load_vehicle
+    from roadtruth.observers.registry import create
     v = load_vehicle(vehicle_name)
     t = np.arange(n) * 0.01
     Y = np.column_stack([0.05 * np.sin(t), 0.1 * np.sin(t), 20 + np.sin(0.1 * t), np.cos(t)])
@@ -109,7 +109,7 @@ def main() -> None:
     ap.add_argument("--vehicle", default="sedan")
     ap.add_argument("--amplitudes", default="7.7,9,11")
     args = ap.parse_args()
-    from harness.scenario import load_scenario
+    from roadtruth.harness.truth.scenario import load_scenario
     print(f"vehicle {args.vehicle}, sensors automotive, noise seed {args.seed}; RMSE after t = 1 s [deg]")
     with tempfile.TemporaryDirectory() as tmp:
         cases = [(f"fishhook {a} deg", _scenario(float(a), Path(tmp))) for a in args.amplitudes.split(",")]

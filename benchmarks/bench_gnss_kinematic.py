@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from harness.pipeline import run_suite
-from harness.vehicle import load_vehicle
-from observers.gnss_kinematic_design import PRINTED_BASE, PRINTED_FUSED
-from observers.registry import create
+from roadtruth.harness.jobs.pipeline import run_suite
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers.gnss_kinematic_design import PRINTED_BASE, PRINTED_FUSED
+from roadtruth.observers.registry import create
 
 OBSERVERS = ["hgo_gnss_kinematic", "hgo_gnss_kinematic_printed", "hgo_gnss_kinematic_imu",
              "ekf_gnss_kinematic", "ekf_gnss_kinematic_imu"]

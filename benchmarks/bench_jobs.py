@@ -1,7 +1,7 @@
 """Two cores that count: ``roadtruth run --no-render`` with ``--jobs 2`` against ``--jobs 1``.
 
 Run: ``python benchmarks/bench_jobs.py [--repeats N] [--suite SUITE]``. Each measurement is the wall
-time of the whole command (``python -m harness.cli run ...`` in a fresh interpreter, imports and
+time of the whole command (``python -m roadtruth.harness.cli run ...`` in a fresh interpreter, imports and
 writing included: what a user waits for), with a warm design cache and warm numba caches (one
 unmeasured warm-up run first). The two job counts alternate, so a change of machine load hits both;
 the script prints best-of-N and median of each and their ratio (the speed-up), and the load average
@@ -28,7 +28,7 @@ ROOT_DIR = [ROOT]
 def run_once(jobs: int, suite: str, out: Path) -> float:
     """Wall time [s] of one ``roadtruth run --no-render --jobs JOBS`` into a new folder under ``out``."""
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
-    cmd = [sys.executable, "-m", "harness.cli", "run", "--suite", suite, "--no-render", "--jobs", str(jobs),
+    cmd = [sys.executable, "-m", "roadtruth.harness.cli", "run", "--suite", suite, "--no-render", "--jobs", str(jobs),
            "--out", str(out / f"jobs{jobs}-{time.monotonic_ns()}")]
     t = time.perf_counter()
     subprocess.run(cmd, cwd=ROOT_DIR[0], env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

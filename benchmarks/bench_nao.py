@@ -49,10 +49,10 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 from bench_designs import textbook_car  # noqa: E402
 
-from harness.vehicle import G, VehicleParams, load_vehicle  # noqa: E402
-from observers.lmi import DesignFailed  # noqa: E402
-from observers.registry import create  # noqa: E402
-from observers.uio_nguyen_design import vehicle_model  # noqa: E402
+from roadtruth.harness.truth.vehicle import G, VehicleParams, load_vehicle  # noqa: E402
+from roadtruth.observers.lmi import DesignFailed  # noqa: E402
+from roadtruth.observers.registry import create  # noqa: E402
+from roadtruth.observers.uio_nguyen_design import vehicle_model  # noqa: E402
 
 SEED = 0          # numpy seed of the protocol's sensor noise (the networks' seed is the observers' default 0)
 T_END = 60.0
@@ -294,7 +294,7 @@ def algebraic(sedan: VehicleParams) -> None:
 def mujoco() -> None:
     import pandas as pd
 
-    from harness.pipeline import run_suite
+    from roadtruth.harness.jobs.pipeline import run_suite
 
     with tempfile.TemporaryDirectory() as tmp:
         out = run_suite(scenarios=["fishhook", "mu_step"], observers=list(SUITE_OBS), out=Path(tmp) / "r",

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from observers import neuro_adaptive as na
-from observers import neuro_adaptive_design as nad
-from observers.lmi import SolverSettings
+from roadtruth.observers import neuro_adaptive as na
+from roadtruth.observers import neuro_adaptive_design as nad
+from roadtruth.observers.lmi import SolverSettings
 
 WINDOWS = ((5.0, 10.0), (15.0, 20.0), (25.0, 30.0), (35.0, 40.0), (45.0, 50.0), (55.0, 60.0))
 VARIANTS = ((na.NeuroAdaptiveCL, {}), (na.NeuroAdaptiveCLPrinted, {}),
@@ -72,7 +72,7 @@ def s3a() -> None:
 def mujoco() -> None:
     import pandas as pd
 
-    from harness.pipeline import run_suite
+    from roadtruth.harness.jobs.pipeline import run_suite
 
     names = [cls.name for cls, _ in VARIANTS]
     with tempfile.TemporaryDirectory() as tmp:

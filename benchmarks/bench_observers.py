@@ -20,7 +20,7 @@ import numpy as np
 
 
 def manoeuvre(vehicle, seconds: float, hz: float = 100.0) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    from observers.bicycle import ay_output, expm2_zoh, vy_r_model
+    from roadtruth.observers.bicycle import ay_output, expm2_zoh, vy_r_model
 
     h = 1.0 / hz
     t = np.arange(0.0, seconds, h)
@@ -68,9 +68,9 @@ def main() -> None:
     if not args.no_design:
         os.environ["ROADTRUTH_CACHE"] = tempfile.mkdtemp(prefix="roadtruth-bench-")  # cold designs
 
-    from harness.vehicle import load_vehicle
-    from observers import lmi
-    from observers.registry import available_observers, create
+    from roadtruth.harness.truth.vehicle import load_vehicle
+    from roadtruth.observers import lmi
+    from roadtruth.observers.registry import available_observers, create
 
     vehicle = load_vehicle(args.vehicle)
     t, sig = manoeuvre(vehicle, args.seconds)

@@ -59,8 +59,8 @@ def s5a() -> None:
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
     from test_observers_high_gain_radar import X0_WRONG, s5a_force_N, seed_truth
 
-    from harness.vehicle import load_vehicle
-    from observers.registry import create
+    from roadtruth.harness.truth.vehicle import load_vehicle
+    from roadtruth.observers.registry import create
 
     sedan = load_vehicle("sedan")
     print("S5a (sec. 5.2.2): lead of (1.35), m = 1850 kg, tau = 0.5 s, K_d = 0.3, d_m = 100 N; y = range, "
@@ -116,8 +116,8 @@ def main() -> None:
 
     import pandas as pd
 
-    from harness.pipeline import run_suite
-    from harness.table_io import read_estimates
+    from roadtruth.harness.files.table_io import read_estimates
+    from roadtruth.harness.jobs.pipeline import run_suite
 
     with tempfile.TemporaryDirectory(prefix="bench-radar-") as tmp:
         out = run_suite(scenarios=["car_following"], observers=list(OBSERVERS), out=Path(tmp) / "r",

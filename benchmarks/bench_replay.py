@@ -1,7 +1,7 @@
 """β RMSE of every observer on the real Ferrari 250 LM log, next to the plain linear Kalman filter.
 
 Replays ``shared/data/revs-250lm`` (55,001 rows, 100 Hz, INS sideslip reference) through
-``harness.replay.replay`` with the shipped column map and vehicle, and prints a Markdown table:
+``roadtruth.harness.jobs.replay.replay`` with the shipped column map and vehicle, and prints a Markdown table:
 every registered observer, the signals it needs, its β RMSE in degrees, the ratio to the linear KF
 (``kf_bicycle``) and to assuming β = 0 (the RMS of the reference over the same scored rows), or why
 it was skipped.
@@ -24,9 +24,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from harness.replay import replay
-from harness.replay_log import load_column_map
-from observers.registry import observer_info
+from roadtruth.harness.jobs.replay import replay
+from roadtruth.harness.jobs.replay_log import load_column_map
+from roadtruth.observers.registry import observer_info
 
 REVS_LOG = (Path(__file__).resolve().parents[1].parent / "shared" / "data" / "revs-250lm"
             / "revs_250lm_2014-02-22.csv.gz")
@@ -40,7 +40,7 @@ def zero_beta_rmse(log: Path, columns: str) -> float:
     assuming β = 0."""
     import numpy as np
 
-    from harness.replay import prepare_log
+    from roadtruth.harness.jobs.replay import prepare_log
 
     rl = prepare_log(log, columns)
     ref = rl.frame.set_index("t_s")["beta_rad"]
@@ -95,7 +95,7 @@ def wrong_vehicles(folder: Path) -> dict[str, str]:
     """Deliberately wrong vehicle files for the Revs car, written into ``folder``: label -> path or name."""
     import re
 
-    from harness.vehicle import load_vehicle
+    from roadtruth.harness.truth.vehicle import load_vehicle
 
     text = Path(load_vehicle("ferrari_250lm").path).read_text()
 

@@ -18,8 +18,8 @@ Then, in one more child interpreter, the CPU time of each observer's ``run()`` o
 segments [s] (``time.process_time``; design and compiled-code loading excluded; best of ``--repeat``),
 sorted, with its share: CPU time, unlike wall time, is comparable on a loaded machine.
 
-``--stages`` adds one more run that calls ``harness.replay.replay`` in a child interpreter with
-``on_stage`` and prints, per stage of ``harness.replay.STAGES`` (plus the interpreter's imports):
+``--stages`` adds one more run that calls ``roadtruth.harness.jobs.replay.replay`` in a child interpreter with
+``on_stage`` and prints, per stage of ``roadtruth.harness.jobs.replay.STAGES`` (plus the interpreter's imports):
 wall time, CPU time of the main process and of the observer hosts, and the peak RSS of each; then
 each observer's share of the hosts' time (its ``run()`` time from ``run.json``).
 
@@ -150,7 +150,7 @@ def replay_cost(out: Path, fmt: str | None, source: Path = SOURCE, observers: st
     comparison on the same machine); ``observers``: comma-separated names (default: all registered);
     ``jobs``: ``--jobs`` (None: the command's default; an older checkout may not have the option).
     """
-    cmd = [sys.executable, "-m", "harness.cli", "replay", str(REVS_LOG), "--vehicle", "ferrari_250lm",
+    cmd = [sys.executable, "-m", "roadtruth.harness.cli", "replay", str(REVS_LOG), "--vehicle", "ferrari_250lm",
            "--columns", "revs_250lm", "--out", str(out)]
     if fmt is not None:
         cmd += ["--format", fmt]
@@ -198,7 +198,7 @@ def stage_child(out: Path, fmt: str, observers: str | None, jobs: int | None, t_
         current.update(name=name, wall=now, cpu=cpu, hosts=hosts)
 
     with sampler:
-        from harness.replay import replay
+        from roadtruth.harness.jobs.replay import replay
 
         mark("setup")  # vehicle, column map, observer registry, host start
         replay(REVS_LOG, vehicle="ferrari_250lm", columns="revs_250lm", out=out, table_format=fmt,
@@ -215,10 +215,10 @@ def stage_child(out: Path, fmt: str, observers: str | None, jobs: int | None, t_
 
 def observer_cpu_child(observers: str | None, repeat: int) -> None:
     """Print ``{observer: best CPU seconds of run() over the run segments}`` as one JSON line."""
-    from harness.replay import prepare_log
-    from harness.replay_log import load_column_map
-    from harness.vehicle import load_vehicle
-    from observers.registry import available_observers, create, observer_class
+    from roadtruth.harness.jobs.replay import prepare_log
+    from roadtruth.harness.jobs.replay_log import load_column_map
+    from roadtruth.harness.truth.vehicle import load_vehicle
+    from roadtruth.observers.registry import available_observers, create, observer_class
 
     veh = load_vehicle("ferrari_250lm", replay=True)
     rl = prepare_log(REVS_LOG, load_column_map("revs_250lm"), vehicle=veh)

@@ -39,9 +39,9 @@ def baseline_s() -> float:
 
 def render_sizes(sizes: tuple[tuple[int, int], ...] = ((640, 480), (480, 368), (320, 240))) -> None:
     """Per-frame render cost of ``step_steer`` (key frames + video) at each size, interleaved, best of 2."""
-    import harness.render as render
-    from harness.pipeline import prepare_scenario
-    from harness.simulate import simulate
+    import roadtruth.harness.report.render as render
+    from roadtruth.harness.jobs.pipeline import prepare_scenario
+    from roadtruth.harness.truth.simulate import simulate
 
     source = render.RenderSource.from_truth(simulate(prepare_scenario("step_steer", None, None), seed=1))
     best: dict[tuple[int, int], tuple[float, int, int]] = {}
@@ -81,9 +81,9 @@ def main() -> None:
     print(f"baseline (python -c 'import numpy', best of 3): {base:.2f} s")
 
     t_import = time.perf_counter()
-    from harness.pipeline import run_suite
+    from roadtruth.harness.jobs.pipeline import run_suite
 
-    print(f"import harness.pipeline: {time.perf_counter() - t_import:.2f} s   (cores: {os.cpu_count()}, "
+    print(f"import roadtruth.harness.jobs.pipeline: {time.perf_counter() - t_import:.2f} s   (cores: {os.cpu_count()}, "
           f"load average before: {os.getloadavg()[0]:.2f})")
     with tempfile.TemporaryDirectory(prefix="bench-run-") as tmp:
         for k in range(a.repeat):

@@ -6,7 +6,7 @@ Run: ``.venv/bin/python benchmarks/bench_scaling.py [--durations 5,20,80,320] [-
 
 1. ``simulate()`` end to end (model build, compiled loop, DataFrame, truth events) of the
    ``curvy_road`` scenario parsed with each duration (its road is extended straight to fit the run).
-2. The observer stage as ``roadtruth run`` runs it (``harness.estimate.run_observers``: each observer
+2. The observer stage as ``roadtruth run`` runs it (``roadtruth.harness.evaluation.estimate.run_observers``: each observer
    designed and run in its host process) on one fixed truth and its seeded measurements, for the
    first N of a fixed list of lateral observers (those that come out ``ok`` in a warm-up run, which
    also loads designs and compiled code). Each observer is also timed alone, so the stage's time can
@@ -30,13 +30,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from harness.errors import ScenarioError
-from harness.estimate import run_observers
-from harness.pipeline import sensor_config
-from harness.scenario import parse_scenario, scenarios_dir
-from harness.sensors import emulate
-from harness.simulate import simulate
-from harness.strict_yaml import load_mapping
+from roadtruth.harness.errors import ScenarioError
+from roadtruth.harness.evaluation.estimate import run_observers
+from roadtruth.harness.files.strict_yaml import load_mapping
+from roadtruth.harness.jobs.pipeline import sensor_config
+from roadtruth.harness.sensors import emulate
+from roadtruth.harness.truth.scenario import parse_scenario, scenarios_dir
+from roadtruth.harness.truth.simulate import simulate
 
 #: Lateral observers of the registry in the order they join the stage (printed or design-free
 #: gains first, so that a cold design does not dominate the timing).

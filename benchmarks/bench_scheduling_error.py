@@ -29,13 +29,13 @@ UNSTRUCTURED = ("lpv_wang_unstructured_hinf", "lpv_wang_unstructured_h2", "lpv_w
 
 def run(scenario: str, vehicle_name: str, seed: int) -> dict[tuple[str, tuple[float, float]], float]:
     """RMSE [deg] of (alpha_f + alpha_r)/2-averaged slip errors per (observer, case)."""
-    from harness.estimate import run_observers
-    from harness.scenario import load_scenario
-    from harness.scoring import score
-    from harness.sensors import load_sensor_config
-    from harness.sensors.suite import emulate
-    from harness.simulate import simulate
-    from harness.vehicle import load_vehicle
+    from roadtruth.harness.evaluation.estimate import run_observers
+    from roadtruth.harness.evaluation.scoring import score
+    from roadtruth.harness.sensors import load_sensor_config
+    from roadtruth.harness.sensors.suite import emulate
+    from roadtruth.harness.truth.scenario import load_scenario
+    from roadtruth.harness.truth.simulate import simulate
+    from roadtruth.harness.truth.vehicle import load_vehicle
 
     sc = load_scenario(scenario).with_vehicle(vehicle_name)
     vehicle = load_vehicle(vehicle_name)

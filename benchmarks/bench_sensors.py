@@ -9,9 +9,9 @@ from __future__ import annotations
 import statistics
 import time
 
-from harness.sensors import SENSORS, emulate, load_sensor_config
-from harness.sensors.synthetic import steady_motion_truth
-from harness.vehicle import load_vehicle
+from roadtruth.harness.sensors import SENSORS, emulate, load_sensor_config
+from roadtruth.harness.sensors.synthetic import steady_motion_truth
+from roadtruth.harness.truth.vehicle import load_vehicle
 
 FAULTS = ("gnss:burst(p_enter=0.01,mean_len=10),imu:spike(p=0.001,magnitude=2),"
           "imu.ay_mps2:bias_step(size=0.3,t_start_s=20),camera:dropout=0.05,radar:delay(extra_s=0.02,jitter_s=0.03),"

@@ -1,4 +1,4 @@
-"""Speed of ``harness.simulate.simulate`` against bare MuJoCo stepping of the model it runs.
+"""Speed of ``roadtruth.harness.truth.simulate.simulate`` against bare MuJoCo stepping of the model it runs.
 
 Run: ``.venv/bin/python benchmarks/bench_simulate.py [--seconds 30] [--repeats 5] [--scenario curvy_road]``.
 
@@ -40,12 +40,12 @@ from typing import Any
 import mujoco
 import numpy as np
 
-import harness.simulate as sim
-from harness.car_model import build_mjcf
-from harness.errors import ScenarioError
-from harness.scenario import load_scenario, parse_scenario, scenarios_dir
-from harness.strict_yaml import load_mapping
-from harness.vehicle import load_vehicle
+import roadtruth.harness.truth.simulate as sim
+from roadtruth.harness.errors import ScenarioError
+from roadtruth.harness.files.strict_yaml import load_mapping
+from roadtruth.harness.truth.car_model import build_mjcf
+from roadtruth.harness.truth.scenario import load_scenario, parse_scenario, scenarios_dir
+from roadtruth.harness.truth.vehicle import load_vehicle
 
 
 @sim.jit
@@ -66,7 +66,7 @@ def _replay(step1, step2, m_ptr: int, d_ptr: int, n: int, rows: np.ndarray,  # n
 
 
 class _TimedRun:
-    """Stands in for ``harness.simulate._run`` and records the wall time of each call [s]."""
+    """Stands in for ``roadtruth.harness.truth.simulate._run`` and records the wall time of each call [s]."""
 
     def __init__(self, original: Any) -> None:
         self.original = original

@@ -33,7 +33,7 @@ SWEEP = ["--scenario", "step_steer", "--observer", "kf_bicycle,lpv_wang", "--fri
 def sweep_once(label: str, extra: list[str], seeds: int, out: Path) -> float:
     """Wall time [s] of one ``roadtruth stress`` of the benchmark sweep with ``extra`` options."""
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
-    cmd = [sys.executable, "-m", "harness.cli", "stress", *SWEEP, "--seeds", str(seeds), *extra,
+    cmd = [sys.executable, "-m", "roadtruth.harness.cli", "stress", *SWEEP, "--seeds", str(seeds), *extra,
            "--out", str(out / f"{label}-{time.monotonic_ns()}")]
     t = time.perf_counter()
     subprocess.run(cmd, cwd=ROOT_DIR[0], env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

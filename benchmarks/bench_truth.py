@@ -19,7 +19,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 
 def scenario(duration_s: float, steer: dict[str, Any], **extra: Any) -> Any:
-    from harness.scenario import parse_scenario
+    from roadtruth.harness.truth.scenario import parse_scenario
 
     data = {"name": "bench", "vehicle": "sedan", "duration_s": duration_s, "initial_speed_mps": 20.0,
             "driver": {"steer": steer}, **extra}
@@ -43,8 +43,8 @@ def linear_yaw_rate(v: Any, t: np.ndarray, vx: np.ndarray, delta: np.ndarray) ->
 
 
 def main() -> None:
-    from harness.simulate import simulate
-    from harness.vehicle import G, load_vehicle
+    from roadtruth.harness.truth.simulate import simulate
+    from roadtruth.harness.truth.vehicle import G, load_vehicle
 
     sedan = load_vehicle("sedan")
     f = simulate(scenario(4.0, {"type": "step", "t_start_s": 0.5, "amplitude_deg": 1.0})).frame

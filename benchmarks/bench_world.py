@@ -12,9 +12,9 @@ import time
 import numpy as np
 from numba import njit
 
-from harness.friction_map import mu_at
-from harness.road import road_project
-from harness.scenario import available_scenarios, load_scenario
+from roadtruth.harness.truth.friction_map import mu_at
+from roadtruth.harness.truth.road import road_project
+from roadtruth.harness.truth.scenario import available_scenarios, load_scenario
 
 
 @njit(cache=True)

@@ -19,8 +19,8 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import NoReturn
 
-from harness import __version__
-from harness.errors import CheckFailed, InputError
+from roadtruth.harness import __version__
+from roadtruth.harness.errors import CheckFailed, InputError
 
 EXIT_OK, EXIT_CHECK_FAILED, EXIT_BAD_INPUT = 0, 1, 2
 
@@ -87,7 +87,7 @@ class _CacheDirAction(argparse.Action):
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: object,
                  option_string: str | None = None) -> None:
-        from harness.disk_cache import CACHE_ENV
+        from roadtruth.harness.files.disk_cache import CACHE_ENV
 
         path = Path(str(values)).expanduser()
         if path.exists() and not path.is_dir():
@@ -114,7 +114,7 @@ def _add_observer_options(sp: argparse.ArgumentParser) -> None:
 
 
 def _observer_options(a: argparse.Namespace) -> dict | None:
-    from harness.observer_options import options_from_cli
+    from roadtruth.harness.evaluation.observer_options import options_from_cli
 
     return options_from_cli(a.observer_options, a.observer_option) or None
 
@@ -122,7 +122,7 @@ def _observer_options(a: argparse.Namespace) -> dict | None:
 # ---- commands -----------------------------------------------------------------------------------
 
 def _cmd_run(a: argparse.Namespace) -> int:
-    from harness.pipeline import run_suite
+    from roadtruth.harness.jobs.pipeline import run_suite
 
     out = run_suite(scenarios=a.scenario, suite_name=a.suite, observers=a.observer, seed=a.seed,
                     jobs=a.jobs, out=Path(a.out), vehicle=a.vehicle, friction=a.friction,
@@ -134,7 +134,7 @@ def _cmd_run(a: argparse.Namespace) -> int:
 
 
 def _cmd_simulate(a: argparse.Namespace) -> int:
-    from harness.pipeline import simulate_to_dir
+    from roadtruth.harness.jobs.pipeline import simulate_to_dir
 
     out = simulate_to_dir(a.scenario, Path(a.out or f"reports/simulate-{Path(a.scenario).stem}"), vehicle=a.vehicle,
                           friction=a.friction, seed=a.seed, log_rate_hz=a.log_rate, sensors=a.sensors,
@@ -145,7 +145,7 @@ def _cmd_simulate(a: argparse.Namespace) -> int:
 
 def _cmd_scenarios(a: argparse.Namespace) -> int:
     # The headers only: a full load builds roads and imports the compiled (numba) code.
-    from harness.scenario_index import scenario_summaries
+    from roadtruth.harness.truth.scenario_index import scenario_summaries
 
     rows = scenario_summaries()
     if a.json:
@@ -160,7 +160,7 @@ def _cmd_scenarios(a: argparse.Namespace) -> int:
 
 def _cmd_observers(a: argparse.Namespace) -> int:
     # Remembered between commands while the code is unchanged: listing imports every observer module.
-    from harness.observer_catalog import observer_rows
+    from roadtruth.harness.evaluation.observer_catalog import observer_rows
 
     rows = observer_rows()
     if a.json:
@@ -174,7 +174,7 @@ def _cmd_observers(a: argparse.Namespace) -> int:
 
 
 def _cmd_vehicles(a: argparse.Namespace) -> int:
-    from harness.vehicle import available_vehicles, load_vehicle
+    from roadtruth.harness.truth.vehicle import available_vehicles, load_vehicle
 
     sets = [load_vehicle(n) for n in available_vehicles()]
     if a.json:
@@ -190,7 +190,7 @@ def _cmd_vehicles(a: argparse.Namespace) -> int:
 
 
 def _cmd_report(a: argparse.Namespace) -> int:
-    from harness.report import build_report
+    from roadtruth.harness.report import build_report
 
     path = build_report(Path(a.dir))
     print(f"report: {path}")
@@ -198,7 +198,7 @@ def _cmd_report(a: argparse.Namespace) -> int:
 
 
 def _cmd_compare(a: argparse.Namespace) -> int:
-    from harness.compare import compare
+    from roadtruth.harness.jobs.compare import compare
 
     result = compare(Path(a.dir_a), Path(a.dir_b), Path(a.out) if a.out else None)
     print(result.terminal())
@@ -208,7 +208,7 @@ def _cmd_compare(a: argparse.Namespace) -> int:
 
 
 def _cmd_check(a: argparse.Namespace) -> int:
-    from harness.check import run_check
+    from roadtruth.harness.jobs.check import run_check
 
     result = run_check(thresholds=Path(a.thresholds) if a.thresholds else None,
                        baseline=Path(a.baseline) if a.baseline else None,
@@ -223,7 +223,7 @@ def _cmd_check(a: argparse.Namespace) -> int:
 
 
 def _cmd_stress(a: argparse.Namespace) -> int:
-    from harness.stress import parse_fault_specs, parse_friction_list, run_stress
+    from roadtruth.harness.jobs.stress import parse_fault_specs, parse_friction_list, run_stress
 
     out = run_stress(scenarios=a.scenario, suite_name=a.suite, observers=a.observer,
                      frictions=parse_friction_list(a.friction) if a.friction else None,
@@ -236,7 +236,7 @@ def _cmd_stress(a: argparse.Namespace) -> int:
 
 
 def _cmd_falsify(a: argparse.Namespace) -> int:
-    from harness.falsify import run_falsify
+    from roadtruth.harness.jobs.falsify import run_falsify
 
     out = run_falsify(observer=a.observer, prop=a.property, scenario=a.scenario, space=a.space, budget=a.budget,
                       jobs=a.jobs, dask=a.dask, seed=a.seed, out=Path(a.out), progress=None,
@@ -246,7 +246,7 @@ def _cmd_falsify(a: argparse.Namespace) -> int:
 
 
 def _cmd_replay(a: argparse.Namespace) -> int:
-    from harness.replay import replay
+    from roadtruth.harness.jobs.replay import replay
 
     out = replay(Path(a.log), vehicle=a.vehicle, columns=a.columns, observers=a.observer, out=Path(a.out),
                  observer_timeout_s=a.observer_timeout, rate_hz=a.rate_hz,
@@ -256,7 +256,7 @@ def _cmd_replay(a: argparse.Namespace) -> int:
 
 
 def _cmd_init(a: argparse.Namespace) -> int:
-    from harness.scaffold import init_project
+    from roadtruth.harness.jobs.scaffold import init_project
 
     written = init_project(a.dir)
     print(f"wrote a starter project with {len(written)} files to {a.dir}; next: pip install -e {a.dir}, then "
@@ -265,7 +265,7 @@ def _cmd_init(a: argparse.Namespace) -> int:
 
 
 def _cmd_mjcf(a: argparse.Namespace) -> int:
-    from harness.mjcf_export import write_model
+    from roadtruth.harness.truth.mjcf_export import write_model
 
     write_model(a.vehicle, a.scenario, Path(a.out))
     print(f"wrote the MuJoCo model of {a.vehicle}{' on ' + a.scenario if a.scenario else ''} to {a.out} "
@@ -274,7 +274,7 @@ def _cmd_mjcf(a: argparse.Namespace) -> int:
 
 
 def _cmd_schema(a: argparse.Namespace) -> int:
-    from harness.config_schema import schema_text, write_schema
+    from roadtruth.harness.files.config_schema import schema_text, write_schema
 
     if a.out:
         write_schema(a.format, Path(a.out))
@@ -432,7 +432,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 #: Formats of `roadtruth schema` (kept here, not imported, so that building the parser stays cheap;
-#: tests/test_config_schema.py checks it equals harness.config_schema.FORMATS).
+#: tests/test_config_schema.py checks it equals roadtruth.harness.files.config_schema.FORMATS).
 _SCHEMA_FORMATS = ("scenario", "vehicle", "replay_vehicle", "sensors", "faults", "column_map", "thresholds",
                    "falsify_space", "observer_options")
 

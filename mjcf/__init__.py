@@ -1,4 +1,4 @@
-"""MuJoCo model templates shipped as package data (see ``harness.car_model``)."""
+"""MuJoCo model templates shipped as package data (see ``roadtruth.harness.truth.car_model``)."""
 
 from importlib.resources import files
 

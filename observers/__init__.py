@@ -1,1 +1,1 @@
-"""roadtruth observers: one observer family per module, registered by name (see ``observers.registry``)."""
+"""roadtruth observers: one observer family per module, registered by name (see ``roadtruth.observers.registry``)."""

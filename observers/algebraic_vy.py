@@ -14,7 +14,7 @@ to the road tangent at the CG, hence (26)
     \hat v_y = \dot y_{L,e} - v_x \psi_L - l_s \dot\psi_{L,e},
 
 ``y_L'``, ``psi_L'`` from Levant differentiators (order 2, the paper's "third-order" HOSMD;
-:mod:`observers.levant_differentiator`) run at the camera's own rate. roadtruth's camera (like a
+:mod:`roadtruth.observers.levant_differentiator`) run at the camera's own rate. roadtruth's camera (like a
 real one) reports ``psi_L`` relative to the road at the look-ahead point; then exactly
 ``y_L' = v_x sin psi_L + (v_y + l_s r) cos psi_L`` and the default ``lane_heading_at="lookahead"``
 uses ``v_y = (y_L' - v_x sin psi_L) / cos psi_L - l_s r`` (the gyro replaces the differentiated
@@ -32,10 +32,10 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from harness.errors import InputError
-from observers.base import ScalarLoopObserver
-from observers.levant_differentiator import LAMBDAS, LevantDifferentiator
-from observers.registry import register
+from roadtruth.harness.errors import InputError
+from roadtruth.observers.base import ScalarLoopObserver
+from roadtruth.observers.levant_differentiator import LAMBDAS, LevantDifferentiator
+from roadtruth.observers.registry import register
 
 
 @register

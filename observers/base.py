@@ -2,7 +2,7 @@
 
 An observer is one class. It declares ``name``, ``citation``, ``inputs`` (measurement columns of
 ARCHITECTURE "Measurements", in the order ``step`` receives them), ``states`` (canonical names of
-``harness.signals``), whether it gives bounds (``has_bounds``) or a covariance (``has_covariance``),
+``roadtruth.harness.signals``), whether it gives bounds (``has_bounds``) or a covariance (``has_covariance``),
 its ``default_options`` and the hard limits it puts on its estimates (``state_bounds``). ``y`` passed
 to ``step`` is a float array ordered as ``inputs``; NaN means "no new sample": the observer predicts
 with the inputs it holds and does not correct.
@@ -22,9 +22,9 @@ from typing import Any, ClassVar
 import numpy as np
 import pandas as pd
 
-from harness.errors import InputError
-from harness.vehicle import VehicleParams
-from observers.lmi import DesignResult
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.truth.vehicle import VehicleParams
+from roadtruth.observers.lmi import DesignRequest, DesignResult
 
 
 @dataclass(frozen=True)
@@ -80,7 +80,7 @@ class Observer(ABC):
     default_options: ClassVar[Mapping[str, Any]] = {}
     #: Hard limits the observer imposes on its own estimates (projection, clipping), state ->
     #: (lo, hi) in the state's unit; empty = none. Scoring reports an estimate that sits on one for
-    #: more than a small fraction of the time as ``saturated`` (``harness.scoring``): declare every
+    #: more than a small fraction of the time as ``saturated`` (``roadtruth.harness.evaluation.scoring``): declare every
     #: static clip here, or a pinned estimate passes as ``ok``.
     state_bounds: ClassVar[Mapping[str, tuple[float, float]]] = {}
     #: True if the observer returns NaN ("no estimate") where its inputs cannot support one (an
@@ -103,6 +103,10 @@ class Observer(ABC):
         if self._design is None:
             self._design = self._compute_design()
         return self._design
+
+    def design_request(self, model: Any = None) -> DesignRequest:
+        """What this observer's LMI design depends on; design modules take this, never the observer."""
+        return DesignRequest(self.vehicle, self.variant, self.options, model)
 
     def _compute_design(self) -> DesignResult:
         return DesignResult.not_applicable(self.variant or self.name, "no LMI design (model-based baseline)")

@@ -25,9 +25,9 @@ import math
 
 import numpy as np
 
-from harness.vehicle import VehicleParams
-from observers.base import ScalarLoopObserver
-from observers.registry import register
+from roadtruth.harness.truth.vehicle import VehicleParams
+from roadtruth.observers.base import ScalarLoopObserver
+from roadtruth.observers.registry import register
 
 Matrix2 = tuple[float, float, float, float]  # row-major (a11, a12, a21, a22)
 

@@ -1,7 +1,7 @@
 r"""Finite-time and interval estimation of ``(beta, r)`` for the discrete LPV bicycle (Bessafa 2024, ch. 2).
 
 H. Bessafa, *Advanced Estimation Algorithms for Connected and Autonomous Vehicle Applications*, PhD
-thesis, Université de Lorraine, 2024, ch. 2. Model (2.32)–(2.37) (:mod:`observers.finite_time_interval_design`):
+thesis, Université de Lorraine, 2024, ch. 2. Model (2.32)–(2.37) (:mod:`roadtruth.observers.finite_time_interval_design`):
 ``x_{k+1} = A_N(rho_k) x_k + B_u(rho_k) u_k + v_k``, ``y_k = r_k``, ``u = delta``,
 ``rho = (1/v_x, 1/v_x^2)``, ``v_k = Delta A(rho_k) x_k + Delta B(rho_k) u_k`` from the unknown
 cornering-stiffness error ``|Delta c_i| <= u c_iN``.
@@ -46,12 +46,18 @@ from typing import Any
 
 import numpy as np
 
-from harness.errors import InputError
-from observers.base import EstimateTrack, ScalarLoopObserver
-from observers.bicycle import axle_stiffness
-from observers.finite_time_interval_design import BicycleLPV, FlpvOptions, cached, design_efimov, design_flpv
-from observers.lmi import DesignResult, SolverSettings, usable_gains
-from observers.registry import register
+from roadtruth.harness.errors import InputError
+from roadtruth.observers.base import EstimateTrack, ScalarLoopObserver
+from roadtruth.observers.bicycle import axle_stiffness
+from roadtruth.observers.finite_time_interval_design import (
+    BicycleLPV,
+    FlpvOptions,
+    cached,
+    design_efimov,
+    design_flpv,
+)
+from roadtruth.observers.lmi import DesignResult, SolverSettings, usable_gains
+from roadtruth.observers.registry import register
 
 M2 = tuple[float, float, float, float]  # row-major 2x2
 #: Yaw-rate bracket before the first sample [rad/s] (a car does not exceed it).
@@ -129,8 +135,8 @@ class _BicycleLPVObserver(ScalarLoopObserver):
         self._prior(math.nan)
 
     def run(self, t: np.ndarray, Y: np.ndarray, x0: Mapping[str, float] | None = None) -> EstimateTrack:
-        """Compiled loop (:mod:`observers.finite_time_interval_loop`), equal to stepping :meth:`step`."""
-        from observers.finite_time_interval_loop import run_compiled
+        """Compiled loop (:mod:`roadtruth.observers.finite_time_interval_loop`), equal to stepping :meth:`step`."""
+        from roadtruth.observers.finite_time_interval_loop import run_compiled
         return run_compiled(self, t, Y, x0)
 
     def _advance(self, t_s: float, y: list[float]) -> None:

@@ -37,7 +37,7 @@ a grid of the box.
 *As printed* (thesis §2.4.2): the printed ``L_i, K_i`` (``i = 0..4``, increment form
 ``L(rho) = L_0 + sum xi_i L_i``) are evaluated, not solved: the vertex gains are ``L_0 + L_i``.
 
-Certification (:func:`observers.lmi.certify_design` plus the discrete-time checks below): the
+Certification (:func:`roadtruth.observers.lmi.certify_design` plus the discrete-time checks below): the
 poly-quadratic LMIs at the 16 corner pairs and on pairs of grid points, ``P(rho) > 0``; the frozen
 closed loops' spectral radius ``< 1`` with no zero eigenvalue (Theorem 2.3.1 needs invertible
 ``A - L C``); ``cond(E_2) <= cond_max`` on all grid pairs. The Efimov et al. observer (thesis §2.2)
@@ -54,9 +54,9 @@ from typing import Any
 
 import numpy as np
 
-import harness
-from observers import lmi
-from observers.lmi import (
+import roadtruth.harness as harness
+from roadtruth.observers import lmi
+from roadtruth.observers.lmi import (
     DesignResult,
     DesignStatus,
     SolverSettings,

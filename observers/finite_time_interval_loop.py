@@ -1,4 +1,4 @@
-"""Compiled whole-run loops of the finite-time / interval estimators (:mod:`observers.finite_time_interval`).
+"""Compiled whole-run loops of the finite-time / interval estimators (:mod:`roadtruth.observers.finite_time_interval`).
 
 Each kernel is the class's ``_advance`` (fixed-step clock, validity checks, the discrete step)
 written on arrays, operation for operation, so a compiled ``run()`` equals stepping ``step()`` one
@@ -18,13 +18,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from harness.tire import jit
+from roadtruth.harness.truth.tire import jit
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
 
-    from observers.base import EstimateTrack
-    from observers.finite_time_interval import _BicycleLPVObserver
+    from roadtruth.observers.base import EstimateTrack
+    from roadtruth.observers.finite_time_interval import _BicycleLPVObserver
 
 R_PRIOR = 2.0  # = finite_time_interval.R_PRIOR_RADPS (asserted equal in run_compiled)
 
@@ -241,9 +241,9 @@ def efimov_run(t: np.ndarray, Y: np.ndarray, u: np.ndarray, tl: np.ndarray, s: n
 def run_compiled(obs: _BicycleLPVObserver, t: np.ndarray, Y: np.ndarray,
                  x0: Mapping[str, float] | None) -> EstimateTrack:
     """``obs.run`` through the kernels above; leaves ``obs`` in the state stepping would leave it in."""
-    from observers import finite_time_interval as fti
-    from observers.base import EstimateTrack
-    from observers.lmi import DesignFailed, usable_gains
+    from roadtruth.observers import finite_time_interval as fti
+    from roadtruth.observers.base import EstimateTrack
+    from roadtruth.observers.lmi import DesignFailed, usable_gains
 
     assert fti.R_PRIOR_RADPS == R_PRIOR
     t = np.ascontiguousarray(t, dtype=float)

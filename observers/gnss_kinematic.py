@@ -10,7 +10,7 @@ Model: ``z = (X, X', X'', Y, Y', Y'')``, ``z' = A z + B f(z)``, ``f = -gamma(z)^
 (GNSS speed), ``h2 = z2 z3 + z5 z6 = 0`` (pseudo-measurement: constant speed, always available) and,
 fused, ``h3 = gamma`` (gyro). Observer (4.45)-(4.46):
 ``z_hat' = A z_hat + B f(z_hat) + T(theta) K (y - C z_hat) + T(theta) N theta^-3 (z - h(z_hat))``,
-``T = blkdiag(diag(theta, theta^2, theta^3) x 2)``. Gains: :mod:`observers.gnss_kinematic_design`.
+``T = blkdiag(diag(theta, theta^2, theta^3) x 2)``. Gains: :mod:`roadtruth.observers.gnss_kinematic_design`.
 Outputs: ``psi = atan2(z5, z2)`` (5.12, atan2 not atan; unwrapped), speed ``hypot(z2, z5)`` scored as
 ``vx_mps`` (the kinematic model has no sideslip: ``v = v_x`` up to ``cos beta``), ``gamma`` as the yaw rate.
 
@@ -48,11 +48,11 @@ from typing import Any
 
 import numpy as np
 
-from harness.errors import InputError
-from harness.tire import jit
-from observers.base import EstimateTrack, Observer, StepOutput
-from observers.lmi import DesignResult, usable_gains
-from observers.registry import register
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.truth.tire import jit
+from roadtruth.observers.base import EstimateTrack, Observer, StepOutput
+from roadtruth.observers.lmi import DesignResult, usable_gains
+from roadtruth.observers.registry import register
 
 STATES = ("x_m", "y_m", "psi_rad", "vx_mps", "yaw_rate_radps")
 RING = 64  # gyro samples waiting for the delayed axis (0.09 s at 100 Hz = 9)
@@ -455,7 +455,7 @@ class _HgoBase(_GnssKinematicBase):
     default_options = dict(_HGO)
 
     def _compute_design(self) -> DesignResult:
-        from observers.gnss_kinematic_design import design_for
+        from roadtruth.observers.gnss_kinematic_design import design_for
         keys = ("lambda_", "sigma", "z_min", "theta_factor", "v_min_mps", "v_max_mps", "a_max_mps2", "r_max_radps")
         opts = {k: float(self.options[k]) for k in keys}
         return design_for(self.name, self.variant, opts, use_cache=bool(self.options["use_cache"]))

@@ -1,4 +1,4 @@
-r"""LMI design of the GNSS kinematic high-gain observers of Bessafa (2024) (see :mod:`observers.gnss_kinematic`).
+r"""LMI design of the GNSS kinematic high-gain observers of Bessafa (2024) (see :mod:`roadtruth.observers.gnss_kinematic`).
 
 Model M8 (sec. 5.3.2, (5.6)-(5.16)): ``z = (X, X', X'', Y, Y', Y'')``, two 3-integrator chains,
 ``z' = A z + B f(z)``, ``y = C z + w = (X, Y) + w``, ``f(z) = -gamma(z)^2 (z2, z5)``,
@@ -41,9 +41,9 @@ from typing import Any
 
 import numpy as np
 
-import harness
-from observers import lmi
-from observers.lmi import DesignResult, DesignStatus, SolverSettings, certify_design, solve_lmi, sym
+import roadtruth.harness as harness
+from roadtruth.observers import lmi
+from roadtruth.observers.lmi import DesignResult, DesignStatus, SolverSettings, certify_design, solve_lmi, sym
 
 N_CHAIN = 3
 A1 = np.diag([1.0, 1.0], k=1)

@@ -3,7 +3,7 @@ r"""Output-integrator dynamic-extension high-gain observer on radar (H. Bessafa,
 H. Bessafa, "Advanced Estimation Algorithms for Connected and Autonomous Vehicle Applications", PhD
 thesis, Université de Lorraine (CRAN), 2024, sec. 4.4, eqs. (4.67)-(4.97), on the radar relative
 model of sec. 5.2 (state ``x = (d, d', a_L)``, ``y = d``, ``z = h(x) = d'``; see
-:mod:`observers.high_gain_radar`).
+:mod:`roadtruth.observers.high_gain_radar`).
 
 A new output is made by integrating the measurements (4.67): ``mu' = alpha y + beta^2 z``, ``mu(0)``
 known (here 0). The extended state ``xi = (mu, x)`` (4.73) has the Brunovsky-like chain ``A_xi`` (with
@@ -16,7 +16,7 @@ known (here 0). The extended state ``xi = (mu, x)`` (4.73) has the Brunovsky-lik
 
 The range and range rate reach the estimate only through their integral, so the range noise ``w``
 enters the error dynamics as ``(alpha/theta) B_w w`` (4.75) instead of ``-K w`` (4.53). Gains and
-certificate: :func:`observers.high_gain_radar_design.design_extension` (LMI (4.84); theta, beta and the
+certificate: :func:`roadtruth.observers.high_gain_radar_design.design_extension` (LMI (4.84); theta, beta and the
 rate kappa from the ``varpi`` form (4.96)-(4.97), ``varpi = beta^2 theta^3``; ISS bound (4.87)).
 
 Implementation: the two integrators ``mu`` and ``mu_hat`` are carried as their difference
@@ -24,7 +24,7 @@ Implementation: the two integrators ``mu`` and ``mu_hat`` are carried as their d
 would lose digits that the gain ``theta^4 K_4 ~ 1e8`` multiplies):
 ``nu' = alpha (y - d_hat) + beta^2 (z - d'_hat) - L_1 nu`` and ``(d, d', a_L)_hat' = chain + L_{2..4} nu``,
 ``L = T(theta) K``. The linear part is integrated exactly with the inputs as ramps (first-order hold,
-as in :mod:`observers.high_gain_radar`); ``f(x_hat)`` is held over the step, evaluated on the box.
+as in :mod:`roadtruth.observers.high_gain_radar`); ``f(x_hat)`` is held over the step, evaluated on the box.
 
 Missing samples (not stated in the thesis): a range (range-rate) sample older than ``hold_s`` is
 replaced in ``mu'`` by its own estimate, i.e. its term of ``nu'`` is dropped; the observer then runs on
@@ -38,9 +38,9 @@ from typing import Any
 
 import numpy as np
 
-from observers.high_gain_radar import _COMMON, HighGainRadarStandard, _check_extra
-from observers.lmi import DesignFailed, DesignStatus
-from observers.registry import register
+from roadtruth.observers.high_gain_radar import _COMMON, HighGainRadarStandard, _check_extra
+from roadtruth.observers.lmi import DesignFailed, DesignStatus
+from roadtruth.observers.registry import register
 
 
 @register

@@ -4,7 +4,7 @@ H. Bessafa, "Advanced Estimation Algorithms for Connected and Autonomous Vehicle
 thesis, Université de Lorraine (CRAN), 2024, HAL tel-04744305: Thm 4.3.1 (standard HGO, SHGO),
 Thm 4.3.2 (Method 1: range-rate gain of bounded norm), Thm 4.3.3 (Method 2: range-rate gain from the
 mean-value vertices of h), Thm 4.3.4 (generalized multi-output HGO), applied in sec. 5.2 (radar
-longitudinal tracking). The dynamic-extension observer of Thm 4.4.1 is in :mod:`observers.high_gain_methods`.
+longitudinal tracking). The dynamic-extension observer of Thm 4.4.1 is in :mod:`roadtruth.observers.high_gain_methods`.
 
 Model (M7d: (1.35) for the lead, written relative to the ego car, (5.1)-(5.3)). State
 ``x = (d, d', a_L)``: range [m], range rate [m/s], lead acceleration [m/s^2]; ego speed ``v_E`` and
@@ -20,7 +20,7 @@ acceleration ``a_E`` are known inputs, lead speed ``v_L = d' + v_E``:
 with ``T(theta) = diag(theta, theta^2, theta^3)``; the SHGO (4.15)-(4.16) is the same with ``N = 0``.
 Methods 1 and 2 (4.24) inject ``M (z - x_hat_2)`` with ``M`` given by their designs in state
 coordinates: Method 1 ``||M||`` bounded by (4.33), Method 2 ``M = T(theta) P^-1 Z^T`` (corrected).
-Gains and certificate: :mod:`observers.high_gain_radar_design` (LMIs (4.20), (4.57), conditions
+Gains and certificate: :mod:`roadtruth.observers.high_gain_radar_design` (LMIs (4.20), (4.57), conditions
 (4.21), (4.58); decay rate ``kappa`` of (4.60)).
 
 CORRECTIONS implemented (printed statements that do not hold): Thm 4.3.3/4.3.4 print ``M = P^-1 Z^T``; the derivation gives
@@ -56,10 +56,10 @@ from typing import Any
 
 import numpy as np
 
-from harness.errors import InputError
-from observers.base import EstimateTrack, ScalarLoopObserver
-from observers.lmi import DesignFailed, DesignResult, DesignStatus
-from observers.registry import register
+from roadtruth.harness.errors import InputError
+from roadtruth.observers.base import EstimateTrack, ScalarLoopObserver
+from roadtruth.observers.lmi import DesignFailed, DesignResult, DesignStatus
+from roadtruth.observers.registry import register
 
 #: Lead model of sec. 5.2.2 (MATLAB case): m = 1850 kg, tau = 0.5 s, K_d = 0.3 N s^2/m^2, d_m = 100 N.
 SEED_LEAD = {"mass_kg": 1850.0, "tau_s": 0.5, "kd_Ns2pm2": 0.3, "dm_N": 100.0}
@@ -124,8 +124,8 @@ class HighGainRadarStandard(ScalarLoopObserver):
         return dict(self._lead)
 
     def _compute_design(self) -> DesignResult:
-        from observers.high_gain_radar_design import design_for
-        return design_for(self)
+        from roadtruth.observers.high_gain_radar_design import design_for
+        return design_for(self.design_request(self.lead_model()))
 
     def gains(self) -> tuple[np.ndarray, np.ndarray]:
         """``(L, M)``: (3,) output-injection gains of range [1/s, 1/s^2, 1/s^3] and range rate."""
@@ -197,8 +197,8 @@ class HighGainRadarStandard(ScalarLoopObserver):
             self._started = True
 
     def run(self, t: np.ndarray, Y: np.ndarray, x0: Mapping[str, float] | None = None) -> EstimateTrack:
-        """Compiled loop (:mod:`observers.high_gain_radar_loop`), equal to stepping :meth:`step`."""
-        from observers.high_gain_radar_loop import run_compiled
+        """Compiled loop (:mod:`roadtruth.observers.high_gain_radar_loop`), equal to stepping :meth:`step`."""
+        from roadtruth.observers.high_gain_radar_loop import run_compiled
         return run_compiled(self, t, Y, x0)
 
     def _advance(self, t_s: float, y: list[float]) -> None:

@@ -1,4 +1,4 @@
-r"""LMI designs of the radar high-gain observers of Bessafa (2024) (see :mod:`observers.high_gain_radar`).
+r"""LMI designs of the radar high-gain observers of Bessafa (2024) (see :mod:`roadtruth.observers.high_gain_radar`).
 
 Error coordinates ``eps = T(theta)^-1 (x - x_hat)``, ``T(theta) = diag(theta, theta^2, theta^3)``.
 
@@ -26,16 +26,21 @@ from __future__ import annotations
 
 import itertools
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-import harness
-from observers import lmi
-from observers.lmi import DesignResult, DesignStatus, SolverSettings, certify_design, solve_lmi, sym
-
-if TYPE_CHECKING:
-    from observers.high_gain_radar import HighGainRadarStandard
+import roadtruth.harness as harness
+from roadtruth.observers import lmi
+from roadtruth.observers.lmi import (
+    DesignRequest,
+    DesignResult,
+    DesignStatus,
+    SolverSettings,
+    certify_design,
+    solve_lmi,
+    sym,
+)
 
 N_STATES = 3
 A_CHAIN = np.diag([1.0, 1.0], k=1)
@@ -88,16 +93,16 @@ def lipschitz_kf(corners: np.ndarray) -> float:
     return float(np.max(np.hypot(corners[:, 0], corners[:, 1])))
 
 
-def design_for(obs: HighGainRadarStandard) -> DesignResult:
+def design_for(req: DesignRequest) -> DesignResult:
     """Cached design for an observer instance (its lead model, variant and options)."""
-    opts = {k: obs.options[k] for k in DESIGN_OPTIONS if k in obs.options}
-    lead = obs.lead_model()
+    opts = {k: req.options[k] for k in DESIGN_OPTIONS if k in req.options}
+    lead = req.model
     settings = SolverSettings()
-    payload = {"family": "high_gain_radar", "variant": obs.variant, "options": opts, "lead": lead,
+    payload = {"family": "high_gain_radar", "variant": req.variant, "options": opts, "lead": lead,
                "solver": settings.to_dict(),
                "code": [harness.__version__, lmi.source_fingerprint(lmi, design_for)]}
-    return lmi.cached_design(payload, lambda: design(obs.variant, lead, opts, settings),
-                             use_cache=bool(obs.options["use_cache"]))
+    return lmi.cached_design(payload, lambda: design(req.variant, lead, opts, settings),
+                             use_cache=bool(req.options["use_cache"]))
 
 
 def design(variant: str, lead: dict[str, float], opts: dict[str, Any], settings: SolverSettings) -> DesignResult:

@@ -1,5 +1,5 @@
-"""Compiled whole-run loops of the radar high-gain observers (:mod:`observers.high_gain_radar`,
-:mod:`observers.high_gain_methods`).
+"""Compiled whole-run loops of the radar high-gain observers (:mod:`roadtruth.observers.high_gain_radar`,
+:mod:`roadtruth.observers.high_gain_methods`).
 
 Each kernel is the ``_advance`` of its class written on arrays, operation for operation, so a
 compiled ``run()`` equals stepping ``step()`` one sample at a time (tested in
@@ -19,13 +19,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from harness.tire import jit
+from roadtruth.harness.truth.tire import jit
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping
 
-    from observers.base import EstimateTrack
-    from observers.high_gain_radar import HighGainRadarStandard
+    from roadtruth.observers.base import EstimateTrack
+    from roadtruth.observers.high_gain_radar import HighGainRadarStandard
 
 
 @jit
@@ -286,8 +286,8 @@ def extension_run(t: np.ndarray, Y: np.ndarray, row: np.ndarray, Phi_t: np.ndarr
 def run_compiled(obs: HighGainRadarStandard, t: np.ndarray, Y: np.ndarray,
                  x0: Mapping[str, float] | None) -> EstimateTrack:
     """``obs.run`` through the kernels above; leaves ``obs`` in the state stepping would leave it in."""
-    from observers.base import EstimateTrack
-    from observers.high_gain_methods import HighGainRadarExtension
+    from roadtruth.observers.base import EstimateTrack
+    from roadtruth.observers.high_gain_methods import HighGainRadarExtension
 
     t = np.ascontiguousarray(t, dtype=float)
     Y = np.ascontiguousarray(np.asarray(Y, dtype=float).reshape(len(t), len(obs.inputs)))

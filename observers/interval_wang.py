@@ -25,7 +25,7 @@ with ``w`` from Lemma 12 (4.13)-(4.17): ``[A(eta, xi) - A(eta, xi0)] x = T(x) v`
 ``w- = T+ v- - T- v+`` at ``x = x-`` (``T+ = max(0, T)``, ``T- = T+ - T``). The upper error
 ``e+ = x+ - x`` obeys ``e+' = A_L(eta, xi) e+ + (w+ - T(x+) v)`` with a nonnegative input, and the
 gains make ``A_L = A(eta, xi) - L(eta) C`` Metzler and Hurwitz with a diagonal Lyapunov matrix at all
-16 vertex pairs (Theorem 5, :mod:`observers.interval_wang_design`), so ``x- <= x <= x+`` is kept.
+16 vertex pairs (Theorem 5, :mod:`roadtruth.observers.interval_wang_design`), so ``x- <= x <= x+`` is kept.
 
 *No steering derivative* (a change of variable; the printed model needs ``delta'``): the copies run on ``z1 = alpha_f - delta``; the bounds of
 ``alpha_f`` are those of ``z1`` shifted by the known ``delta``; ``w`` is computed from the ``alpha``
@@ -62,7 +62,7 @@ definitions, ``v_y = v_x tan(delta - alpha_f) - l_f r`` (decreasing in ``alpha_f
 interval, the two are intersected (their hull if they are disjoint, which only a broken slip
 inclusion can cause), and ``beta = atan(v_y / v_x)`` is monotone. Point estimates are midpoints.
 
-*Compiled.* ``step()`` and ``run()`` call the same numba kernel (:mod:`observers.interval_wang_loop`),
+*Compiled.* ``step()`` and ``run()`` call the same numba kernel (:mod:`roadtruth.observers.interval_wang_loop`),
 with one sample or the whole log, so they agree bit for bit.
 
 Variants: ``interval_wang`` (fresh Theorem 5 design, certified) and ``interval_wang_printed`` (the
@@ -78,12 +78,12 @@ from typing import Any
 
 import numpy as np
 
-from harness.errors import InputError
-from observers.base import EstimateTrack, ScalarLoopObserver, StepOutput
-from observers.bicycle import axle_stiffness, slip_model_terms
-from observers.interval_wang_loop import N_PAR, derive_bounds, interval_run
-from observers.lmi import DesignResult, usable_gains
-from observers.registry import register
+from roadtruth.harness.errors import InputError
+from roadtruth.observers.base import EstimateTrack, ScalarLoopObserver, StepOutput
+from roadtruth.observers.bicycle import axle_stiffness, slip_model_terms
+from roadtruth.observers.interval_wang_loop import N_PAR, derive_bounds, interval_run
+from roadtruth.observers.lmi import DesignResult, usable_gains
+from roadtruth.observers.registry import register
 
 KMH = 1.0 / 3.6
 _COMMON: dict[str, Any] = {
@@ -161,7 +161,7 @@ class IntervalWang(ScalarLoopObserver):
         if not (self._ny >= 0.0 and self._nr >= 0.0):
             raise InputError("y_error_bound_rad and yaw_rate_error_bound_radps must be >= 0", field=f)
         self._L: tuple[float, ...] | None = None
-        # the kernel's constants (observers.interval_wang_loop); gains filled in when first needed
+        # the kernel's constants (roadtruth.observers.interval_wang_loop); gains filled in when first needed
         self._par = np.array([0.0] * 6 + [*self._A1, *self._bf0, *self._lip, *self._vm, *self._vp, self._vlo,
                               self._vhi, self._alo, self._ahi, self._ab, self._hold, self._vmin, self._ny,
                               self._nr, self._lf, self._lr])
@@ -169,8 +169,8 @@ class IntervalWang(ScalarLoopObserver):
         self._par_has_gains = False
 
     def _compute_design(self) -> DesignResult:
-        from observers.interval_wang_design import design_for
-        return design_for(self)
+        from roadtruth.observers.interval_wang_design import design_for
+        return design_for(self.design_request({"cf_range": tuple(self.cf_range), "cr_range": tuple(self.cr_range)}))
 
     def gains(self) -> tuple[float, ...]:
         """``(L0, L1, L2)`` flattened to 6 floats; raises :class:`DesignFailed` without usable gains."""

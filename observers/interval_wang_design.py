@@ -1,4 +1,4 @@
-r"""LMI design of Wang's (2014) LPV interval observer (see :mod:`observers.interval_wang`).
+r"""LMI design of Wang's (2014) LPV interval observer (see :mod:`roadtruth.observers.interval_wang`).
 
 Theorem 5 of the dissertation (4.32)-(4.35), over the ``4 eta x 4 xi = 16`` vertex pairs of
 Lemma 14 (``A(eta, xi) = eta1 Bf0 diag(xi) - eta2 I`` is bilinear in ``eta = (1/v_x, a_x/v_x)`` and
@@ -22,20 +22,21 @@ The printed gain (4.47) is evaluated, not solved: Metzler check at every vertex 
 16), plus, for information, the smallest gamma a diagonal P certifies for it ignoring
 the Metzler condition.
 
-Certification (:func:`observers.lmi.certify_design`): the bounded-real LMI at the 16 vertex pairs and
+Certification (:func:`roadtruth.observers.lmi.certify_design`): the bounded-real LMI at the 16 vertex pairs and
 on a (v_x, a_x, C_f, C_r) grid, ``A_L`` Metzler at the same points, frozen closed loop Hurwitz.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-import harness
-from observers import bicycle, lmi
-from observers.lmi import (
+import roadtruth.harness as harness
+from roadtruth.observers import bicycle, lmi
+from roadtruth.observers.lmi import (
+    DesignRequest,
     DesignResult,
     DesignStatus,
     SolverSettings,
@@ -47,9 +48,6 @@ from observers.lmi import (
     sym,
     trapezoid_vertices,
 )
-
-if TYPE_CHECKING:
-    from observers.interval_wang import IntervalWang
 
 C = np.array([[1.0, -1.0]])
 I2 = np.eye(2)
@@ -63,23 +61,23 @@ PRINTED_GAIN: dict[str, list[list[float]]] = {
 }
 
 
-def design_for(obs: IntervalWang) -> DesignResult:
-    """Cached design for an observer instance (its vehicle, variant and options)."""
-    v = obs.vehicle
+def design_for(req: DesignRequest) -> DesignResult:
+    """Cached design for an observer's request (its vehicle, variant and options)."""
+    v = req.vehicle
     cf, cr = bicycle.axle_stiffness(v)
-    opts = {"vx_range_mps": list(obs.options["vx_range_mps"]), "ax_range_mps2": list(obs.options["ax_range_mps2"]),
-            "cf_range_Npr": list(obs.cf_range), "cr_range_Npr": list(obs.cr_range),
-            "gamma_slack": float(obs.options.get("gamma_slack", 1.0))}
+    opts = {"vx_range_mps": list(req.options["vx_range_mps"]), "ax_range_mps2": list(req.options["ax_range_mps2"]),
+            "cf_range_Npr": list(req.model["cf_range"]), "cr_range_Npr": list(req.model["cr_range"]),
+            "gamma_slack": float(req.options.get("gamma_slack", 1.0))}
     settings = SolverSettings()
     payload = {
-        "family": "interval_wang", "variant": obs.variant, "options": opts, "solver": settings.to_dict(),
+        "family": "interval_wang", "variant": req.variant, "options": opts, "solver": settings.to_dict(),
         "vehicle": {"mass_kg": v.mass_kg, "yaw_inertia_kgm2": v.yaw_inertia_kgm2, "lf_m": v.lf_m, "lr_m": v.lr_m,
                     "cf_Npr": cf, "cr_Npr": cr},
         "code": [harness.__version__, lmi.source_fingerprint(lmi, bicycle, design_for)],
     }
     _, bf0 = bicycle.slip_model_terms(v)
-    return lmi.cached_design(payload, lambda: design(obs.variant, bf0, opts, settings),
-                             use_cache=bool(obs.options["use_cache"]))
+    return lmi.cached_design(payload, lambda: design(req.variant, bf0, opts, settings),
+                             use_cache=bool(req.options["use_cache"]))
 
 
 # ---- model at a point ------------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""The compiled kernel of the LPV interval observer (:mod:`observers.interval_wang`), shared by step() and run().
+"""The compiled kernel of the LPV interval observer (:mod:`roadtruth.observers.interval_wang`), shared by step() and run().
 
 :func:`interval_run` is the observer's whole per-sample update (latching the inputs, the change of
 variable at the first steering sample, the guard rails, the inflated exact-ZOH step of both copies,
@@ -23,8 +23,8 @@ import math
 
 import numpy as np
 
-from harness.tire import jit
-from observers.bicycle import expm2_zoh
+from roadtruth.harness.truth.tire import jit
+from roadtruth.observers.bicycle import expm2_zoh
 
 N_PAR = 33
 _expm2 = jit(expm2_zoh)

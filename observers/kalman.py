@@ -4,9 +4,9 @@ State ``x = (v_y, r)``; inputs ``delta`` and ``v_x`` drive the model, ``r`` (gyr
 (accelerometer) correct it, each only when a new sample arrives.
 
 * ``kf_bicycle``: linear speed-scheduled model (3.17), exact ZOH per step (closed form,
-  :func:`observers.bicycle.expm2_zoh`), ``a_y = (F_yf + F_yr)/m = C(v_x) x + D delta``.
+  :func:`roadtruth.observers.bicycle.expm2_zoh`), ``a_y = (F_yf + F_yr)/m = C(v_x) x + D delta``.
 * ``ekf_bicycle`` / ``ukf_bicycle``: the nonlinear single-track model of
-  :mod:`observers.tire_curves` (Magic Formula axle forces with peak ``grip * mu * F_z,static``:
+  :mod:`roadtruth.observers.tire_curves` (Magic Formula axle forces with peak ``grip * mu * F_z,static``:
   the vehicle's tire grip times the assumed road friction, option ``mu``; cornering stiffness kept).
 
 Process noise: white accelerations with spectral densities ``q = std^2`` [(m/s^2)^2/Hz,
@@ -39,7 +39,7 @@ Robustness of the nonlinear filters on real data (a tire model is never exactly 
 
 The EKF and UKF steps are compiled kernels (``ekf_advance``, ``ukf_advance``) on floats; their
 ``py_func`` is the plain-Python twin, tested equal. ``step()`` and ``run()`` of every filter call the
-same compiled loop (:mod:`observers.kalman_loop`, one sample or the whole log), so they agree bit for bit. numba caches each kernel per source file: after
+same compiled loop (:mod:`roadtruth.observers.kalman_loop`, one sample or the whole log), so they agree bit for bit. numba caches each kernel per source file: after
 editing ``observers/tire_curves.py`` (or ``expm2_zoh``) delete ``observers/__pycache__/*.nbi, *.nbc``.
 """
 
@@ -51,13 +51,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from harness.errors import InputError
-from harness.tire import jit
-from harness.vehicle import G
-from observers.base import EstimateTrack, ScalarLoopObserver, StepOutput
-from observers.bicycle import axle_stiffness, expm2_zoh
-from observers.registry import register
-from observers.tire_curves import (
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.truth.tire import jit
+from roadtruth.harness.truth.vehicle import G
+from roadtruth.observers.base import EstimateTrack, ScalarLoopObserver, StepOutput
+from roadtruth.observers.bicycle import axle_stiffness, expm2_zoh
+from roadtruth.observers.registry import register
+from roadtruth.observers.tire_curves import (
     M_GRIP,
     M_IZ,
     M_LF,
@@ -338,7 +338,7 @@ class _BicycleFilter(ScalarLoopObserver):
     states = _STATES
     has_covariance = True
     default_options = dict(_OPTIONS)
-    _kind: ClassVar[int]   # which filter observers.kalman_loop.filter_run runs
+    _kind: ClassVar[int]   # which filter roadtruth.observers.kalman_loop.filter_run runs
 
     def _setup(self) -> None:
         v, o = self.vehicle, self.options
@@ -347,7 +347,7 @@ class _BicycleFilter(ScalarLoopObserver):
         self._q1, self._q2 = float(o["process_std_vy_mps2"]) ** 2, float(o["process_std_r_radps2"]) ** 2
         self._Rr, self._Ray = float(o["meas_std_r_radps"]) ** 2, float(o["meas_std_ay_mps2"]) ** 2
         self._vmin = float(o["vx_min_mps"])
-        # constants of the compiled loop (observers.kalman_loop)
+        # constants of the compiled loop (roadtruth.observers.kalman_loop)
         self._kp = np.array([self._m, self._iz, self._lf, self._lr, self._cf, self._cr, self._vmin, self._q1,
                              self._q2, self._Rr, self._Ray])
         self._model = np.zeros(1)    # tire curves and filter arrays: the nonlinear filters' own
@@ -358,7 +358,7 @@ class _BicycleFilter(ScalarLoopObserver):
 
     def _compiled(self, t: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Advance through ``t`` (n,) [s], ``Y`` (n, 4) in the shared kernel; (x, var), each (n, 5)."""
-        from observers.kalman_loop import filter_run
+        from roadtruth.observers.kalman_loop import filter_run
 
         u, fresh, tl = np.array(self._u), np.array(self._fresh, dtype=np.bool_), np.array(self._t_last)
         st = np.array([self._t, self._z[0], self._z[1], self._P[0], self._P[1], self._P[2], self._ay_lp])

@@ -1,4 +1,4 @@
-"""The compiled kernel of the Kalman-filter baselines (:mod:`observers.kalman`), shared by step() and run().
+"""The compiled kernel of the Kalman-filter baselines (:mod:`roadtruth.observers.kalman`), shared by step() and run().
 
 :func:`filter_run` is a filter's whole per-sample update (latching the inputs, the linear KF step or
 the compiled EKF / UKF step with grip adaptation, the derived outputs and their first-order variances)
@@ -8,7 +8,7 @@ log, so both execute the same compiled code on the same state and agree bit for 
 
 Carried state: ``u``/``tl`` (4,) held ``(delta, v_x, r, a_y)`` and their arrival times [s], ``fresh``
 (4,) bool; ``s`` = ``(t_cur, v_y, r, p11, p12, p22, a_y_lp)``; ``model``/``filt`` the tire-curve and
-filter arrays of :mod:`observers.tire_curves` / :mod:`observers.kalman` (the grip adaptation changes
+filter arrays of :mod:`roadtruth.observers.tire_curves` / :mod:`roadtruth.observers.kalman` (the grip adaptation changes
 them in place). ``kp`` = ``(m, I_z, l_f, l_r, C_f, C_r, v_min, q1, q2, R_r, R_ay)``.
 
 numba caches each kernel per source file: after editing this file or ``observers/kalman.py`` delete
@@ -21,8 +21,8 @@ import math
 
 import numpy as np
 
-from harness.tire import jit
-from observers.kalman import _expm2, _joseph, _propagate_cov, adapt_grip, ekf_advance, ukf_advance
+from roadtruth.harness.truth.tire import jit
+from roadtruth.observers.kalman import _expm2, _joseph, _propagate_cov, adapt_grip, ekf_advance, ukf_advance
 
 #: ``kind`` of :func:`filter_run`.
 LINEAR_KF, EKF, UKF = 0, 1, 2

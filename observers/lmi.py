@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from harness.disk_cache import CACHE_ENV, cache_folder, read_entry, write_entry  # noqa: F401 (CACHE_ENV re-exported)
+from roadtruth.harness.files.disk_cache import CACHE_ENV, cache_folder, read_entry, write_entry  # noqa: F401 (CACHE_ENV re-exported)
 
 
 class DesignStatus(enum.Enum):
@@ -325,17 +325,39 @@ def certify_design(*, P: np.ndarray | None, lmis: Mapping[str, Callable[[np.ndar
 # family builds inside its own design function (its vertex LMIs, grid, decay rate, Metzler
 # structure), and several stored designs cannot be re-checked from what they hold (the "as printed"
 # variants carry no P, the UIO's (1.26) needs the solver's lambda, the switched design's LMIs need its
-# per-mode Q and gamma). So an entry carries a SHA-256 of its content and key (``harness.disk_cache``);
+# per-mode Q and gamma). So an entry carries a SHA-256 of its content and key (``roadtruth.harness.files.disk_cache``);
 # any edit makes it unreadable and the design is recomputed and re-certified from scratch.
 
 _MEMO: dict[str, DesignResult] = {}
-#: Sub-folder of the cache root (``harness.disk_cache.cache_root``) holding the designs.
+#: Sub-folder of the cache root (``roadtruth.harness.files.disk_cache.cache_root``) holding the designs.
 CACHE_KIND = "designs"
 
 
 def design_cache_dir() -> Path:
     """``designs/`` under ``$ROADTRUTH_CACHE``, else under the user cache folder (never the working directory)."""
     return cache_folder(CACHE_KIND)
+
+
+@dataclass(frozen=True)
+class DesignRequest:
+    """What an observer's LMI design depends on, handed to its design module.
+
+    The design modules take this instead of the observer object, so they never import the
+    observer classes (no observer <-> design import cycle).
+
+    Attributes
+    ----------
+    vehicle : the ``VehicleParams`` the observer was built for.
+    variant : the observer's variant (``""`` for the family's main form).
+    options : the observer's options (defaults merged).
+    model : a family's own model data the design needs (stiffness ranges, a lead-vehicle or
+        Takagi-Sugeno model, the generalized UIO model); None if the family has none.
+    """
+
+    vehicle: Any
+    variant: str
+    options: Mapping[str, Any]
+    model: Any = None
 
 
 def source_fingerprint(*objects: Any) -> str:

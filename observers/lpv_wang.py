@@ -8,7 +8,7 @@ Model (3.18)-(3.21), states ``x = (alpha_f, alpha_r)``, scheduled on ``theta1 = 
     \dot x = (\theta_1 A_1 - \theta_2 I) x + (B_0 + \theta_2 B_2)(\delta, \dot\delta, r)^T,\quad
     y = \delta - (l_f + l_r) r / v_x = [1, -1] x,
 
-``A1 = Bf0 diag(C_f, C_r)`` (:func:`observers.bicycle.slip_model_terms`). Observer (3.22)-(3.23):
+``A1 = Bf0 diag(C_f, C_r)`` (:func:`roadtruth.observers.bicycle.slip_model_terms`). Observer (3.22)-(3.23):
 ``x' = A(theta) x + B(theta) u + L(theta)(y - C x)``, ``L(theta) = L0 + theta1 L1 + theta2 L2``.
 
 *No steering derivative* (a change of variable; the printed model needs ``delta'``): with ``z1 = alpha_f - delta`` the model becomes
@@ -23,7 +23,7 @@ Variants: ``lpv_wang`` (nominal 4-vertex design (3.27) **with a decay rate sigma
 already satisfies the bare feasibility LMI), ``lpv_wang_hinf`` (robust H-infinity (3.43) on the
 16 vertices of Lemma 10), and the dissertation's printed gains ``lpv_wang_printed`` /
 ``lpv_wang_hinf_printed``, which go through the same certification. Design code: ``lpv_wang_design``. The robust H2 and
-unstructured observers of sec. 3.2.3 are in :mod:`observers.lpv_wang_robust`.
+unstructured observers of sec. 3.2.3 are in :mod:`roadtruth.observers.lpv_wang_robust`.
 """
 
 from __future__ import annotations
@@ -31,10 +31,10 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from observers.base import ScalarLoopObserver
-from observers.bicycle import expm2_zoh, slip_model_terms
-from observers.lmi import DesignResult, usable_gains
-from observers.registry import register
+from roadtruth.observers.base import ScalarLoopObserver
+from roadtruth.observers.bicycle import expm2_zoh, slip_model_terms
+from roadtruth.observers.lmi import DesignResult, usable_gains
+from roadtruth.observers.registry import register
 
 KMH = 1.0 / 3.6
 _COMMON: dict[str, Any] = {
@@ -52,7 +52,7 @@ _COMMON: dict[str, Any] = {
 
 def scheduling_error(value: Any, field: str) -> tuple[float, float]:
     """Validate the ``scheduling_error`` option: two finite factors in (-1, 1)."""
-    from harness.errors import InputError
+    from roadtruth.harness.errors import InputError
     try:
         e1, e2 = (float(x) for x in value)
     except (TypeError, ValueError):
@@ -81,7 +81,7 @@ class LPVWang(ScalarLoopObserver):
         self._vlo, self._vhi = (float(x) for x in self.options["vx_range_mps"])
         self._alo, self._ahi = (float(x) for x in self.options["ax_range_mps2"])
         if not (0.0 < self._vlo < self._vhi and self._alo <= self._ahi):
-            from harness.errors import InputError
+            from roadtruth.harness.errors import InputError
             raise InputError(f"bad design domain v {self.options['vx_range_mps']}, a {self.options['ax_range_mps2']}",
                              field=f"observer {self.name}")
         self._hold = float(self.options["hold_s"])
@@ -90,8 +90,8 @@ class LPVWang(ScalarLoopObserver):
         self._L: tuple[float, ...] | None = None
 
     def _compute_design(self) -> DesignResult:
-        from observers.lpv_wang_design import design_for
-        return design_for(self)
+        from roadtruth.observers.lpv_wang_design import design_for
+        return design_for(self.design_request())
 
     def gains(self) -> tuple[float, ...]:
         """``(L0, L1, L2)`` flattened to 6 floats; raises :class:`DesignFailed` without usable gains."""

@@ -1,4 +1,4 @@
-r"""LMI designs of Wang's (2014) LPV slip-angle observer (see :mod:`observers.lpv_wang`).
+r"""LMI designs of Wang's (2014) LPV slip-angle observer (see :mod:`roadtruth.observers.lpv_wang`).
 
 Nominal (3.27) with a decay rate ``sigma``: find ``P = P^T >= I`` and ``Q0, Q1, Q2`` with, at the 4
 vertices of Lemma 9, ``He(P A(theta) - Q(theta) C) + 2 sigma P < 0``, ``L_i = P^-1 Q_i``. Then
@@ -21,13 +21,14 @@ certified gamma (H-infinity) for the given L, then the same NumPy certification.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-import harness
-from observers import bicycle, lmi
-from observers.lmi import (
+import roadtruth.harness as harness
+from roadtruth.observers import bicycle, lmi
+from roadtruth.observers.lmi import (
+    DesignRequest,
     DesignResult,
     DesignStatus,
     SolverSettings,
@@ -38,9 +39,6 @@ from observers.lmi import (
     sym,
     trapezoid_vertices,
 )
-
-if TYPE_CHECKING:
-    from observers.lpv_wang import LPVWang
 
 C = np.array([[1.0, -1.0]])
 B2 = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
@@ -57,21 +55,21 @@ PRINTED_GAINS: dict[str, dict[str, list[list[float]]]] = {
 }
 
 
-def design_for(obs: LPVWang) -> DesignResult:
-    """Cached design for an observer instance (its vehicle, variant and options)."""
-    v = obs.vehicle
+def design_for(req: DesignRequest) -> DesignResult:
+    """Cached design for an observer's request (its vehicle, variant and options)."""
+    v = req.vehicle
     cf, cr = bicycle.axle_stiffness(v)
-    opts = {k: val for k, val in obs.options.items() if k not in RUN_ONLY_OPTIONS}
+    opts = {k: val for k, val in req.options.items() if k not in RUN_ONLY_OPTIONS}
     settings = SolverSettings()
     payload = {
-        "family": "lpv_wang", "variant": obs.variant, "options": opts, "solver": settings.to_dict(),
+        "family": "lpv_wang", "variant": req.variant, "options": opts, "solver": settings.to_dict(),
         "vehicle": {"mass_kg": v.mass_kg, "yaw_inertia_kgm2": v.yaw_inertia_kgm2, "lf_m": v.lf_m, "lr_m": v.lr_m,
                     "cf_Npr": cf, "cr_Npr": cr},
         "code": [harness.__version__, lmi.source_fingerprint(lmi, bicycle, design_for)],
     }
     A1, _ = bicycle.slip_model_terms(v)
-    return lmi.cached_design(payload, lambda: design(obs.variant, A1, opts, settings),
-                             use_cache=bool(obs.options["use_cache"]))
+    return lmi.cached_design(payload, lambda: design(req.variant, A1, opts, settings),
+                             use_cache=bool(req.options["use_cache"]))
 
 
 def design(variant: str, A1: np.ndarray, opts: dict[str, Any], settings: SolverSettings) -> DesignResult:

@@ -1,10 +1,10 @@
 r"""Robust H2 and unstructured LPV slip-angle observers (Y. Wang 2014, ch. 3, sec. 3.2.3).
 
-Same model, inputs, outputs and derived ``v_y, beta`` as :mod:`observers.lpv_wang`; the observers are
+Same model, inputs, outputs and derived ``v_y, beta`` as :mod:`roadtruth.observers.lpv_wang`; the observers are
 scheduled on the *measured* ``theta_m = (1/v_m, a_m/v_m)``, which may be wrong by the multiplicative
 errors ``v_m = (1 + eps1) v_x``, ``a_m = (1 + eps2) a_x`` (3.68)-(3.73), ``eps1`` in +-0.1, ``eps2`` in
 +-0.2 (the ``scheduling_error`` option applies such an error on purpose, as in the dissertation's
-experiment). Designs on the 16 vertices of Lemma 10 in :mod:`observers.lpv_wang_robust_design`.
+experiment). Designs on the 16 vertices of Lemma 10 in :mod:`roadtruth.observers.lpv_wang_robust_design`.
 
 * ``lpv_wang_h2``: robust H2 Luenberger observer (3.31), ``L(theta_m) = L0 + theta_m1 L1 + theta_m2 L2``,
   designed by the standard H2 LMIs (the printed (3.41) lacks the output term, see the design module);
@@ -30,21 +30,21 @@ from __future__ import annotations
 
 from typing import Any
 
-from observers.bicycle import expm2_zoh
-from observers.lmi import DesignResult, usable_gains
-from observers.lpv_wang import _COMMON, LPVWang
-from observers.registry import register
+from roadtruth.observers.bicycle import expm2_zoh
+from roadtruth.observers.lmi import DesignResult, usable_gains
+from roadtruth.observers.lpv_wang import _COMMON, LPVWang
+from roadtruth.observers.registry import register
 
 _ROBUST: dict[str, Any] = {**_COMMON, "eps1_range": (-0.1, 0.1), "eps2_range": (-0.2, 0.2)}
 _CITE = "Y. Wang, PhD dissertation, Auburn University 2014, ch. 3"
 
 
 class _RobustDesign(LPVWang):
-    """Shared: the design comes from :mod:`observers.lpv_wang_robust_design`."""
+    """Shared: the design comes from :mod:`roadtruth.observers.lpv_wang_robust_design`."""
 
     def _compute_design(self) -> DesignResult:
-        from observers.lpv_wang_robust_design import design_for
-        return design_for(self)
+        from roadtruth.observers.lpv_wang_robust_design import design_for
+        return design_for(self.design_request())
 
 
 @register
@@ -79,7 +79,7 @@ class LPVWangUnstructuredHinf(_RobustDesign):
     def gains(self) -> tuple[float, ...]:
         """``Ao_i`` (4 each), ``Bou_i`` (6 each), ``Boy_i`` (2 each), i = 0..2, flattened row-major."""
         if self._L is None:
-            from observers.lpv_wang_robust_design import UNSTRUCTURED_KEYS
+            from roadtruth.observers.lpv_wang_robust_design import UNSTRUCTURED_KEYS
             self._L = usable_gains(self.name, self.design(), UNSTRUCTURED_KEYS)
         return self._L
 

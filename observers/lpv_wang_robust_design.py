@@ -1,6 +1,6 @@
 r"""LMI designs of Wang's (2014) robust H2 and unstructured LPV slip-angle observers.
 
-Observers in :mod:`observers.lpv_wang_robust`. Every variant is written in the unstructured form
+Observers in :mod:`roadtruth.observers.lpv_wang_robust`. Every variant is written in the unstructured form
 (3.47)-(3.48), ``x' = A_o(theta_m) x + B_ou(theta_m) u + B_oy(theta_m) y`` (a Luenberger observer is
 ``A_o = A - L C``, ``B_ou = B``, ``B_oy = L``), scheduled on the measured ``theta_m = theta - dtheta``.
 With ``w = (x_hat, u)`` the estimation error ``e = x - x_hat`` obeys (3.34)/(3.49)-(3.51)
@@ -32,13 +32,14 @@ them, then the same NumPy certification.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-import harness
-from observers import bicycle, lmi
-from observers.lmi import (
+import roadtruth.harness as harness
+from roadtruth.observers import bicycle, lmi
+from roadtruth.observers.lmi import (
+    DesignRequest,
     DesignResult,
     DesignStatus,
     SolverSettings,
@@ -48,10 +49,7 @@ from observers.lmi import (
     solve_lmi,
     sym,
 )
-from observers.lpv_wang_design import RUN_ONLY_OPTIONS
-
-if TYPE_CHECKING:
-    from observers.lpv_wang import LPVWang
+from roadtruth.observers.lpv_wang_design import RUN_ONLY_OPTIONS
 
 C = np.array([[1.0, -1.0]])
 B0 = np.array([[0.0, 1.0, 1.0], [0.0, 0.0, 1.0]])
@@ -81,21 +79,21 @@ VARIANTS = ("h2", "h2_printed", "unstructured_hinf", "unstructured_hinf_printed"
             "unstructured_h2_printed")
 
 
-def design_for(obs: LPVWang) -> DesignResult:
-    """Cached design for an observer instance (its vehicle, variant and options)."""
-    v = obs.vehicle
+def design_for(req: DesignRequest) -> DesignResult:
+    """Cached design for an observer's request (its vehicle, variant and options)."""
+    v = req.vehicle
     cf, cr = bicycle.axle_stiffness(v)
-    opts = {k: val for k, val in obs.options.items() if k not in RUN_ONLY_OPTIONS}
+    opts = {k: val for k, val in req.options.items() if k not in RUN_ONLY_OPTIONS}
     settings = SolverSettings()
     payload = {
-        "family": "lpv_wang_robust", "variant": obs.variant, "options": opts, "solver": settings.to_dict(),
+        "family": "lpv_wang_robust", "variant": req.variant, "options": opts, "solver": settings.to_dict(),
         "vehicle": {"mass_kg": v.mass_kg, "yaw_inertia_kgm2": v.yaw_inertia_kgm2, "lf_m": v.lf_m, "lr_m": v.lr_m,
                     "cf_Npr": cf, "cr_Npr": cr},
         "code": [harness.__version__, lmi.source_fingerprint(lmi, bicycle, design_for)],
     }
     A1, _ = bicycle.slip_model_terms(v)
-    return lmi.cached_design(payload, lambda: design(obs.variant, A1, opts, settings),
-                             use_cache=bool(obs.options["use_cache"]))
+    return lmi.cached_design(payload, lambda: design(req.variant, A1, opts, settings),
+                             use_cache=bool(req.options["use_cache"]))
 
 
 # ---- error system --------------------------------------------------------------------------------

@@ -8,7 +8,7 @@ Euler (1.43)/(1.63) at ``dt_s`` (sub-steps of the runner's step):
     \hat x_{k+1} = \hat x_k + \Delta t\big(A(\rho)\hat x_k + B_u u + B_\mu\mu_\theta(\hat x_k, \delta)
     + L_{NN}(y - C\hat x_k)\big),
 
-``L_NN`` from Theorem 2 with the disk constraint (:mod:`observers.neural_adaptive_nguyen_design`).
+``L_NN`` from Theorem 2 with the disk constraint (:mod:`roadtruth.observers.neural_adaptive_nguyen_design`).
 ``mu_theta``: a 4-32-32-2 tanh MLP (1282 parameters, last layer initialised x0.01) of the features
 ``((v_x - 15)/10, v_y, r/0.5, delta/0.1)`` (heading dropped: forces do not depend on it), output in kN.
 The teacher is the regularised UIO (``uio_nguyen``) run on the same inputs: loss (1.42) with
@@ -26,7 +26,7 @@ printed ``e^(i+1-p)`` grows without bound, read as a recency weight); only the n
 trained and used in the sensitivity.
 
 ``run()`` (what the harness calls) is the compiled whole-run loop of
-:mod:`observers.neural_adaptive_nguyen_loop`, teacher included, equal bit for bit to stepping
+:mod:`roadtruth.observers.neural_adaptive_nguyen_loop`, teacher included, equal bit for bit to stepping
 ``step()``, which stays the plain-Python reference (``ScalarLoopObserver.run(obs, t, Y)`` runs it over
 a whole run).
 """
@@ -40,13 +40,13 @@ from typing import Any
 
 import numpy as np
 
-from harness.errors import InputError
-from harness.tire import jit
-from observers.base import EstimateTrack, ScalarLoopObserver
-from observers.lmi import DesignResult, usable_gains
-from observers.registry import register
-from observers.uio_nguyen import TWO_PI, NguyenUIO
-from observers.uio_nguyen_design import N_MU, N_X, vehicle_model
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.truth.tire import jit
+from roadtruth.observers.base import EstimateTrack, ScalarLoopObserver
+from roadtruth.observers.lmi import DesignResult, usable_gains
+from roadtruth.observers.registry import register
+from roadtruth.observers.uio_nguyen import TWO_PI, NguyenUIO
+from roadtruth.observers.uio_nguyen_design import N_MU, N_X, vehicle_model
 
 HIDDEN = 32
 N_IN = 4
@@ -267,9 +267,9 @@ class NeuralAdaptiveNguyen(ScalarLoopObserver):
         self._Tu = np.array([1.0, 10.0, 0.0, 10.0])
 
     def _compute_design(self) -> DesignResult:
-        from observers.neural_adaptive_nguyen_design import design_for
+        from roadtruth.observers.neural_adaptive_nguyen_design import design_for
         self._teacher.design()
-        return design_for(self)
+        return design_for(self.design_request())
 
     def _initial_state(self) -> list[float]:
         return [0.0, 0.0]
@@ -309,12 +309,12 @@ class NeuralAdaptiveNguyen(ScalarLoopObserver):
         self._teacher.reset(self._t, {"vy_mps": self._z[0], "yaw_rate_radps": self._z[1]})
 
     def run(self, t: np.ndarray, Y: np.ndarray, x0: Mapping[str, float] | None = None) -> EstimateTrack:
-        """Compiled loop (:mod:`observers.neural_adaptive_nguyen_loop`), equal to stepping :meth:`step`.
+        """Compiled loop (:mod:`roadtruth.observers.neural_adaptive_nguyen_loop`), equal to stepping :meth:`step`.
 
         Without usable gains (a failed design) the run steps in Python, so that it fails exactly where
         stepping fails: at the first step that needs the gains.
         """
-        from observers.neural_adaptive_nguyen_loop import run_compiled
+        from roadtruth.observers.neural_adaptive_nguyen_loop import run_compiled
         track = run_compiled(self, t, Y, x0)
         return track if track is not None else super().run(t, Y, x0)
 

@@ -19,18 +19,30 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-import harness
-from harness.vehicle import VehicleParams
-from observers import lmi
-from observers.lmi import DesignResult, DesignStatus, SolverSettings, certify_design, solve_lmi, sym
-from observers.uio_nguyen_design import N_MU, N_X, N_Y, VehicleModel, scheduling_points, vehicle_model
-
-if TYPE_CHECKING:
-    from observers.neural_adaptive_nguyen import NeuralAdaptiveNguyen
+import roadtruth.harness as harness
+from roadtruth.harness.truth.vehicle import VehicleParams
+from roadtruth.observers import lmi
+from roadtruth.observers.lmi import (
+    DesignRequest,
+    DesignResult,
+    DesignStatus,
+    SolverSettings,
+    certify_design,
+    solve_lmi,
+    sym,
+)
+from roadtruth.observers.uio_nguyen_design import (
+    N_MU,
+    N_X,
+    N_Y,
+    VehicleModel,
+    scheduling_points,
+    vehicle_model,
+)
 
 
 def lmi_141(P: np.ndarray, Q: np.ndarray, sigma: float, A: np.ndarray, Bmu: np.ndarray, C: np.ndarray,
@@ -94,10 +106,10 @@ def design(model: VehicleModel, opts: dict[str, Any], settings: SolverSettings) 
                         math.sqrt(sigma), out.stats, "lmi_disk")
 
 
-def design_for(obs: NeuralAdaptiveNguyen) -> DesignResult:
+def design_for(req: DesignRequest) -> DesignResult:
     """Cached design for an observer instance."""
-    v: VehicleParams = obs.vehicle
-    opts = {k: obs.options[k] for k in ("dt_s", "disk_radius", "vx_range_mps", "grid_points")}
+    v: VehicleParams = req.vehicle
+    opts = {k: req.options[k] for k in ("dt_s", "disk_radius", "vx_range_mps", "grid_points")}
     settings = SolverSettings()
     payload = {
         "family": "neural_adaptive_nguyen", "options": opts, "solver": settings.to_dict(),
@@ -107,4 +119,4 @@ def design_for(obs: NeuralAdaptiveNguyen) -> DesignResult:
     }
     model = vehicle_model(v)
     compute: Callable[[], DesignResult] = lambda: design(model, opts, settings)  # noqa: E731
-    return lmi.cached_design(payload, compute, use_cache=bool(obs.options["use_cache"]))
+    return lmi.cached_design(payload, compute, use_cache=bool(req.options["use_cache"]))

@@ -1,7 +1,7 @@
-"""Compiled whole-run loop of the neural adaptive observers of Nguyen (:mod:`observers.neural_adaptive_nguyen`).
+"""Compiled whole-run loop of the neural adaptive observers of Nguyen (:mod:`roadtruth.observers.neural_adaptive_nguyen`).
 
 :func:`nao_run` is ``NeuralAdaptiveNguyen._advance`` over a whole run, teacher UIO included
-(``NguyenUIO._advance`` of :mod:`observers.uio_nguyen`, with its own compiled :func:`affine_rk4`),
+(``NguyenUIO._advance`` of :mod:`roadtruth.observers.uio_nguyen`, with its own compiled :func:`affine_rk4`),
 written on arrays operation for operation in the same order, so that ``run()`` equals stepping
 ``step()`` one sample at a time bit for bit (``tests/test_observers_nao_compiled.py``); ``step()``
 stays the plain-Python reference. What makes it fast is not a different algorithm but the layout:
@@ -30,14 +30,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from harness.tire import jit
-from observers.uio_nguyen import SUBSTEP_RATE, TWO_PI, affine_rk4
+from roadtruth.harness.truth.tire import jit
+from roadtruth.observers.uio_nguyen import SUBSTEP_RATE, TWO_PI, affine_rk4
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
 
-    from observers.base import EstimateTrack
-    from observers.neural_adaptive_nguyen import NeuralAdaptiveNguyen
+    from roadtruth.observers.base import EstimateTrack
+    from roadtruth.observers.neural_adaptive_nguyen import NeuralAdaptiveNguyen
 
 H = 32                  # hidden width of mu_theta (4-32-32-2)
 O1 = 0                  # offsets of W1 (32x4), b1, W2 (32x32), b2, W3 (2x32), b3 in theta
@@ -494,8 +494,8 @@ def run_compiled(obs: NeuralAdaptiveNguyen, t: np.ndarray, Y: np.ndarray,
     """
     from collections import deque
 
-    from observers.base import EstimateTrack
-    from observers.lmi import DesignFailed
+    from roadtruth.observers.base import EstimateTrack
+    from roadtruth.observers.lmi import DesignFailed
 
     t = np.ascontiguousarray(t, dtype=float)
     Y = np.ascontiguousarray(np.asarray(Y, dtype=float).reshape(len(t), len(obs.inputs)))

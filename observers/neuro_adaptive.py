@@ -5,7 +5,7 @@ thesis, Université de Lorraine (CRAN), 2024, HAL tel-04744305:
 
 * ``neuro_adaptive_cl``: the proposed neuro-adaptive LMI observer (sec. 3.4, Thm 3.4.1, (3.11),
   Algorithm 2) with gains from LMI (3.12) in the form that is feasible
-  (:mod:`observers.neuro_adaptive_design`); ``neuro_adaptive_cl_printed``: the same with the printed
+  (:mod:`roadtruth.observers.neuro_adaptive_design`); ``neuro_adaptive_cl_printed``: the same with the printed
   gains L = 1e6 [0.0364, 0.5032, 5.6725], K = 3.169e7 (rejected at the printed lambda = 1e5).
 * ``cl_aeo_ran_xie``: the concurrent-learning adaptive extended observer of Ran & Xie (sec. 3.3,
   (3.7)): high-gain extended observer ``[l_i / eps^i]``, saturated estimates, a *known* regressor
@@ -54,12 +54,12 @@ from typing import Any
 
 import numpy as np
 
-from harness.errors import InputError
-from harness.tire import jit
-from observers import neuro_adaptive_design as nad
-from observers.base import EstimateTrack, Observer
-from observers.lmi import DesignResult, usable_gains
-from observers.registry import register
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.truth.tire import jit
+from roadtruth.observers import neuro_adaptive_design as nad
+from roadtruth.observers.base import EstimateTrack, Observer
+from roadtruth.observers.lmi import DesignResult, usable_gains
+from roadtruth.observers.registry import register
 
 REG_SIGMOID = 0   # sigma(x) of (3.29): three sigmoids
 REG_M7C = 1       # known regressor of (3.27): (v a, a, v^2, 1)
@@ -405,7 +405,7 @@ class _LearningObserver(Observer):
 
     def step(self, t_s: float, y: np.ndarray) -> Any:
         """Step-by-step use reruns the compiled loop on the history (the harness calls :meth:`run`)."""
-        from observers.base import StepOutput
+        from roadtruth.observers.base import StepOutput
         self._hist_t.append(float(t_s))
         self._hist_y.append(np.asarray(y, dtype=float))
         tr = self._run(np.array(self._hist_t), self._relative_inputs(np.array(self._hist_y)), self._x0)

@@ -27,7 +27,7 @@ units. The optimum lambda* = 1.75e-5 hardly depends on the floor; the floor sets
 without bound as the floor goes to zero. The printed gains have the same shape (one pole at
 -3.6e4 rad/s, three at -8 and -2.9 +/- 10j) and certify only up to lambda = 2.0e-7 under ``P <= D``.
 
-Certification (NumPy, :func:`observers.lmi.certify_design`): P > 0, (3.12) at the design lambda,
+Certification (NumPy, :func:`roadtruth.observers.lmi.certify_design`): P > 0, (3.12) at the design lambda,
 ``P - D <= 0`` and the closed-loop matrix ``A~ - L~ C~`` Hurwitz. The certified decay rate of
 ``V = e^T P e`` is ``lambda / lambda_max(P)`` (3.20) (tiny: 2e-3 /s: the bound of the theorem is
 far from the observed convergence, which the poles set).
@@ -40,9 +40,9 @@ from typing import Any
 
 import numpy as np
 
-import harness
-from observers import lmi
-from observers.lmi import DesignResult, DesignStatus, SolverSettings, certify_design, solve_lmi, sym
+import roadtruth.harness as harness
+from roadtruth.observers import lmi
+from roadtruth.observers.lmi import DesignResult, DesignStatus, SolverSettings, certify_design, solve_lmi, sym
 
 #: Vehicle of sec. 3.5.3: m [kg], tau [s], K_d [N s^2/m^2], d_m [N].
 M7C = {"mass_kg": 1850.0, "tau_s": 0.5, "kd_Ns2pm2": 0.3, "dm_N": 100.0}

@@ -22,7 +22,7 @@ with ``K1 = diag(k1)``, ``k1 = -c1 (2 s_m - s_m^2)``, ``s_m = theta_t alpha_max`
 ``f`` on the slip domain ``|alpha| <= alpha_max`` (``K2 = 0``). The guarantee (decay of
 ``e^T P e`` at the certified rate) holds while true and estimated slips stay in that domain.
 
-Variants (design in :mod:`observers.nonlinear_wang_design`):
+Variants (design in :mod:`roadtruth.observers.nonlinear_wang_design`):
 
 * ``nonlinear_wang_luenberger``: extended Luenberger (5.2), Lemma 17 (``L2 = 0``), constant ``L1``;
 * ``nonlinear_wang_arcak``: Arcak two-DOF, Theorem 7, constant ``L1, L2``;
@@ -31,7 +31,7 @@ Variants (design in :mod:`observers.nonlinear_wang_design`):
   lambda, ``L2`` affine in ``(v_x, a_x)``, with gain-norm limits;
 * ``nonlinear_wang_printed``: the gains printed in (5.73) (``L1``, ``L2`` affine in lambda).
 
-As in :mod:`observers.lpv_wang` the state ``z1 = alpha_f - delta`` removes the steering rate, and
+As in :mod:`roadtruth.observers.lpv_wang` the state ``z1 = alpha_f - delta`` removes the steering rate, and
 ``v_y`` / ``beta`` are derived from the CONTRACT slip definitions.
 """
 
@@ -42,11 +42,11 @@ from typing import Any
 
 import numpy as np
 
-from harness.tire import jit
-from observers.base import ScalarLoopObserver
-from observers.bicycle import slip_model_terms
-from observers.lmi import DesignResult, usable_gains
-from observers.registry import register
+from roadtruth.harness.truth.tire import jit
+from roadtruth.observers.base import ScalarLoopObserver
+from roadtruth.observers.bicycle import slip_model_terms
+from roadtruth.observers.lmi import DesignResult, usable_gains
+from roadtruth.observers.registry import register
 
 KMH = 1.0 / 3.6
 #: Index layout of the parameter array of the compiled step.
@@ -158,8 +158,8 @@ class NonlinearWang(ScalarLoopObserver):
     default_options = dict(_COMMON)
 
     def _setup(self) -> None:
-        from harness.errors import InputError
-        from observers.nonlinear_wang_design import tire_data
+        from roadtruth.harness.errors import InputError
+        from roadtruth.observers.nonlinear_wang_design import tire_data
         v = self.vehicle
         lo_v, hi_v = (float(x) for x in self.options["vx_range_mps"])
         lo_a, hi_a = (float(x) for x in self.options["ax_range_mps2"])
@@ -185,7 +185,7 @@ class NonlinearWang(ScalarLoopObserver):
         self._zarr = np.zeros(2)
 
     def _compute_design(self) -> DesignResult:
-        from observers.nonlinear_wang_design import design_for
+        from roadtruth.observers.nonlinear_wang_design import design_for
         return design_for(self)
 
     def gain_arrays(self) -> tuple[np.ndarray, np.ndarray]:

@@ -1,4 +1,4 @@
-r"""LMI designs of Wang's (2014, ch. 5) nonlinear observers (see :mod:`observers.nonlinear_wang`).
+r"""LMI designs of Wang's (2014, ch. 5) nonlinear observers (see :mod:`roadtruth.observers.nonlinear_wang`).
 
 Plant (5.1)/(5.28)/(5.37): ``x' = A x + B_f f(x) + Psi(y, u) + B_w w``, ``y = C x``, ``z = C_p e``. The
 nonlinearity enters through ``q`` scalar channels, channel ``j`` depending on the single scalar
@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from observers.lmi import (
+from roadtruth.observers.lmi import (
     Certificate,
     DesignResult,
     DesignStatus,
@@ -518,7 +518,7 @@ VARIANTS = {"luenberger": ("lemma17", False), "arcak": ("thm7", False), "l2": ("
 def tire_data(vehicle: Any, mu: float, alpha_max_rad: float) -> tuple[list[float], list[float], list[float]]:
     """Per axle ``c1`` [N/rad], ``theta_t`` [1/rad] of (5.63) and the slope bound ``k1`` [N/rad] on
     ``|alpha| <= alpha_max``; ``mu F_z`` = tire grip x ``mu`` x static axle load."""
-    from harness.errors import InputError
+    from roadtruth.harness.errors import InputError
     if not (isinstance(mu, int | float) and 0.05 <= mu <= 2.0):
         raise InputError(f"road friction mu must be a number in [0.05, 2] (got {mu!r})", field="observer option mu")
     c1 = [float(vehicle.cornering_stiffness_f_Npr), float(vehicle.cornering_stiffness_r_Npr)]
@@ -531,7 +531,7 @@ def tire_data(vehicle: Any, mu: float, alpha_max_rad: float) -> tuple[list[float
 def vehicle_design_problem(vehicle: Any, opts: dict[str, Any], *, scheduled: bool, l2_in_lambda: bool = False
                            ) -> SectorProblem:
     """The design problem of a vehicle and the observer options (see :func:`vehicle_problem`)."""
-    from observers.bicycle import slip_model_terms
+    from roadtruth.observers.bicycle import slip_model_terms
     c1, _, k1 = tire_data(vehicle, float(opts["mu"]), float(opts["slip_domain_rad"]))
     _, Bf0 = slip_model_terms(vehicle)
     pb = vehicle_problem(Bf0, c1, k1, tuple(opts["vx_range_mps"]), tuple(opts["ax_range_mps2"]),
@@ -566,9 +566,9 @@ def design_vehicle(vehicle: Any, variant: str, opts: dict[str, Any], settings: S
 
 
 def design_for(obs: Any) -> DesignResult:
-    """Cached design for an observer instance (its vehicle, variant and options)."""
-    import harness
-    from observers import lmi
+    """Cached design for an observer's request (its vehicle, variant and options)."""
+    import roadtruth.harness as harness
+    from roadtruth.observers import lmi
     v = obs.vehicle
     opts = {k: val for k, val in obs.options.items() if k not in RUN_ONLY_OPTIONS}
     settings = SolverSettings()

@@ -10,7 +10,7 @@ PI observer (Wojciechowski 1978; Söffker, Yu & Müller 1995) on the chapter's v
     \dot{\hat\mu} = -\kappa\hat\mu + L_I(y - C\hat x),
 
 ``x = (v_x, v_y, psi, r)``, ``mu = (f_yf, f_yr)`` [kN], ``y = (v_x, psi_m, r)``; gains from the
-certified decay + disk LMIs of :mod:`observers.pi_observer_design`. The leakage ``kappa`` is
+certified decay + disk LMIs of :mod:`roadtruth.observers.pi_observer_design`. The leakage ``kappa`` is
 required: without it the integrated unknown input has an unobservable mode at ``s = 0`` for this
 ``C``. Measurements and heading as in ``uio_nguyen``: ``a <- ax_mps2``, ``psi_m`` is the
 trapezoidal integral of the gyro (re-centred to (-pi, pi] with ``psi_hat``). Between samples the
@@ -26,12 +26,12 @@ from typing import Any
 
 import numpy as np
 
-from harness.errors import InputError
-from observers.base import ScalarLoopObserver
-from observers.lmi import DesignResult, usable_gains
-from observers.registry import register
-from observers.uio_nguyen import SUBSTEP_RATE, TWO_PI, affine_rk4
-from observers.uio_nguyen_design import MU_SCALE_N, N_MU, N_X, N_Y, scheduling_points, vehicle_model
+from roadtruth.harness.errors import InputError
+from roadtruth.observers.base import ScalarLoopObserver
+from roadtruth.observers.lmi import DesignResult, usable_gains
+from roadtruth.observers.registry import register
+from roadtruth.observers.uio_nguyen import SUBSTEP_RATE, TWO_PI, affine_rk4
+from roadtruth.observers.uio_nguyen_design import MU_SCALE_N, N_MU, N_X, N_Y, scheduling_points, vehicle_model
 
 N_A = N_X + N_MU
 
@@ -73,8 +73,8 @@ class PIObserverNguyen(ScalarLoopObserver):
         self._consts: tuple[np.ndarray, ...] | None = None
 
     def _compute_design(self) -> DesignResult:
-        from observers.pi_observer_design import design_for
-        return design_for(self)
+        from roadtruth.observers.pi_observer_design import design_for
+        return design_for(self.design_request())
 
     def constants(self) -> tuple[np.ndarray, ...]:
         """``(Fs, Gs, Fp, Gp, bounds)`` of the corrected and the prediction ODEs (affine in rho)."""

@@ -1,6 +1,6 @@
-r"""Certified LMI design of the proportional-integral (PI) unknown-input observer (see :mod:`observers.pi_observer`).
+r"""Certified LMI design of the proportional-integral (PI) unknown-input observer (see :mod:`roadtruth.observers.pi_observer`).
 
-Augmented model on Nguyen's vehicle (1.55)-(1.56) (:func:`observers.uio_nguyen_design.vehicle_model`,
+Augmented model on Nguyen's vehicle (1.55)-(1.56) (:func:`roadtruth.observers.uio_nguyen_design.vehicle_model`,
 ``mu = (f_yf, f_yr)`` in kN), the unknown input given **leaky** null dynamics ``mu' = -kappa mu``:
 
 .. math::
@@ -37,18 +37,30 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-import harness
-from harness.vehicle import VehicleParams
-from observers import lmi
-from observers.lmi import DesignResult, DesignStatus, SolverSettings, certify_design, solve_lmi, sym
-from observers.uio_nguyen_design import N_MU, N_X, N_Y, VehicleModel, scheduling_points, vehicle_model
-
-if TYPE_CHECKING:
-    from observers.pi_observer import PIObserverNguyen
+import roadtruth.harness as harness
+from roadtruth.harness.truth.vehicle import VehicleParams
+from roadtruth.observers import lmi
+from roadtruth.observers.lmi import (
+    DesignRequest,
+    DesignResult,
+    DesignStatus,
+    SolverSettings,
+    certify_design,
+    solve_lmi,
+    sym,
+)
+from roadtruth.observers.uio_nguyen_design import (
+    N_MU,
+    N_X,
+    N_Y,
+    VehicleModel,
+    scheduling_points,
+    vehicle_model,
+)
 
 N_A = N_X + N_MU
 
@@ -160,18 +172,18 @@ def design(model: VehicleModel, opts: dict[str, Any], settings: SolverSettings) 
                         out.stats, variant)
 
 
-def design_for(obs: PIObserverNguyen) -> DesignResult:
+def design_for(req: DesignRequest) -> DesignResult:
     """Cached design for an observer instance (its vehicle and design options)."""
-    v: VehicleParams = obs.vehicle
+    v: VehicleParams = req.vehicle
     keys = ("kappa", "decay_rate", "pole_radius", "vx_range_mps", "grid_points")
-    opts = {k: obs.options[k] for k in keys}
+    opts = {k: req.options[k] for k in keys}
     settings = SolverSettings()
     payload = {
-        "family": "pi_observer_nguyen", "variant": obs.variant, "options": opts, "solver": settings.to_dict(),
+        "family": "pi_observer_nguyen", "variant": req.variant, "options": opts, "solver": settings.to_dict(),
         "vehicle": {"mass_kg": v.mass_kg, "yaw_inertia_kgm2": v.yaw_inertia_kgm2, "lf_m": v.lf_m, "lr_m": v.lr_m,
                     "cf_Npr": v.cornering_stiffness_f_Npr, "cr_Npr": v.cornering_stiffness_r_Npr},
         "code": [harness.__version__, lmi.source_fingerprint(lmi, design_for, design)],
     }
     model = vehicle_model(v)
     compute: Callable[[], DesignResult] = lambda: design(model, opts, settings)  # noqa: E731
-    return lmi.cached_design(payload, compute, use_cache=bool(obs.options["use_cache"]))
+    return lmi.cached_design(payload, compute, use_cache=bool(req.options["use_cache"]))

@@ -60,12 +60,12 @@ from typing import Any
 
 import numpy as np
 
-from harness.errors import InputError
-from harness.tire import jit
-from harness.vehicle import G, VehicleParams
-from observers.base import EstimateTrack, Observer, StepOutput
-from observers.registry import register
-from observers.tire_curves import inverse_magic_formula
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.truth.tire import jit
+from roadtruth.harness.truth.vehicle import G, VehicleParams
+from roadtruth.observers.base import EstimateTrack, Observer, StepOutput
+from roadtruth.observers.registry import register
+from roadtruth.observers.tire_curves import inverse_magic_formula
 
 STATES = ("vy_mps", "beta_rad", "alpha_r_rad")
 INPUTS = ("vx_mps", "yaw_rate_radps", "ay_mps2")

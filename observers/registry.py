@@ -19,12 +19,12 @@ import warnings
 from importlib.metadata import entry_points
 from typing import TYPE_CHECKING, Any
 
-from harness.errors import InputError, RoadtruthError
-from harness.signals import ESTIMABLE
+from roadtruth.harness.errors import InputError, RoadtruthError
+from roadtruth.harness.signals import ESTIMABLE
 
 if TYPE_CHECKING:
-    from harness.vehicle import VehicleParams
-    from observers.base import Observer
+    from roadtruth.harness.truth.vehicle import VehicleParams
+    from roadtruth.observers.base import Observer
 
 ENTRY_POINT_GROUP = "roadtruth.observers"
 _FRAMEWORK_MODULES = frozenset({"base", "registry", "lmi"})
@@ -68,21 +68,21 @@ def _load_all() -> None:
     if _loaded:
         return
     _loaded = True
-    import observers
+    import roadtruth.observers as observers
 
     for info in pkgutil.iter_modules(observers.__path__):
         if info.name in _FRAMEWORK_MODULES or info.name.startswith("_"):
             continue
         try:
-            importlib.import_module(f"observers.{info.name}")
+            importlib.import_module(f"roadtruth.observers.{info.name}")
         except Exception as exc:  # noqa: BLE001 - one broken module must not hide the others
-            warnings.warn(f"observer module observers.{info.name} failed to import: {exc}", stacklevel=2)
+            warnings.warn(f"observer module roadtruth.observers.{info.name} failed to import: {exc}", stacklevel=2)
     load_plugins()
 
 
 def load_plugins() -> list[str]:
     """Load the entry-point group ``roadtruth.observers``; return the names of loaded entry points."""
-    from observers.base import Observer
+    from roadtruth.observers.base import Observer
 
     loaded = []
     for ep in entry_points(group=ENTRY_POINT_GROUP):

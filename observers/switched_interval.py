@@ -5,7 +5,7 @@ Unknown Inputs Interval Observers: Experimental Validation", ACC 2018, pp. 1138-
 doi:10.23919/ACC.2018.8431486.
 
 Guaranteed bounds ``x^- <= x <= x^+`` for ``x = [v_y, r, psi_L, y_L]`` of the linear bicycle + lane model
-(12)-(16) (corrected (10)-(11), see :mod:`observers.switched_interval_design`), with road curvature
+(12)-(16) (corrected (10)-(11), see :mod:`roadtruth.observers.switched_interval_design`), with road curvature
 ``rho`` an unknown input removed by decoupling (``P_i E_i = 0``, (24)-(25)), cornering stiffness
 ``c = c_0 (1 ± unc)`` and ``N = 3`` speed modes (35) with gains from the Theorem 2 SDP.
 
@@ -53,11 +53,11 @@ from typing import Any
 
 import numpy as np
 
-from harness.errors import InputError
-from observers.base import ScalarLoopObserver
-from observers.bicycle import expm2_zoh
-from observers.lmi import DesignFailed, DesignResult, DesignStatus
-from observers.registry import register
+from roadtruth.harness.errors import InputError
+from roadtruth.observers.base import ScalarLoopObserver
+from roadtruth.observers.bicycle import expm2_zoh
+from roadtruth.observers.lmi import DesignFailed, DesignResult, DesignStatus
+from roadtruth.observers.registry import register
 
 
 def _mul(a: float, lo: float, hi: float) -> tuple[float, float]:
@@ -127,8 +127,8 @@ class SwitchedIntervalIfqir(ScalarLoopObserver):
         self.dwell_time_s = 0.0
 
     def _compute_design(self) -> DesignResult:
-        from observers.switched_interval_design import design_for
-        return design_for(self)
+        from roadtruth.observers.switched_interval_design import design_for
+        return design_for(self.design_request())
 
     def mode_constants(self) -> list[tuple[float, ...]]:
         """Per mode the runtime scalars (see :meth:`_load`); raises :class:`DesignFailed` if uncertified."""

@@ -27,7 +27,7 @@ SDP (Theorem 2, eqs. (26)-(28), linearised with ``Z_i = Q_i Y_i``, ``alpha = 1``
 ``Q_iP_i = Q_i(I + H_0C) - Z_i\Pi C`` (so ``P_iE_i = 0`` by construction, eq. (24)-(25) with the
 pseudo-inverse transpose restored), ``K_i = Q_i^{-1}W_i``, ``H_i = H_0 - Q_i^{-1}Z_i\Pi``, ``P_i = I + H_iC``.
 
-Two structural constraints (ours, documented in :mod:`observers.switched_interval`): rows 3-4 of
+Two structural constraints (ours, documented in :mod:`roadtruth.observers.switched_interval`): rows 3-4 of
 ``Q_iP_i`` are zero (``h_3 = h_4 = 0``; with ``P >= 0`` the columns 3-4 already vanish) and
 ``W_i`` has zero camera columns in rows 1-2. Then the ``(v_y, r)`` bounds never use the camera (they
 could not be tightened by it anyway, §2.8), ``z_3 = z_4 = 0`` exactly, and a camera dropout does not
@@ -46,16 +46,21 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-import harness
-from observers import bicycle, lmi
-from observers.lmi import DesignResult, DesignStatus, SolverSettings, certify_design, solve_lmi, sym
-
-if TYPE_CHECKING:
-    from observers.switched_interval import SwitchedIntervalIfqir
+import roadtruth.harness as harness
+from roadtruth.observers import bicycle, lmi
+from roadtruth.observers.lmi import (
+    DesignRequest,
+    DesignResult,
+    DesignStatus,
+    SolverSettings,
+    certify_design,
+    solve_lmi,
+    sym,
+)
 
 N_X, N_Y = 4, 3
 C = np.array([[0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
@@ -92,11 +97,11 @@ class LateralModel:
         return np.array([0.0, 0.0, -v, -self.ls * v])
 
 
-def lateral_model(obs: SwitchedIntervalIfqir) -> LateralModel:
-    v = obs.vehicle
+def lateral_model(req: DesignRequest) -> LateralModel:
+    v = req.vehicle
     cf, cr = bicycle.axle_stiffness(v)
     return LateralModel(v.mass_kg, v.yaw_inertia_kgm2, v.lf_m, v.lr_m, float(cf), float(cr),
-                        float(obs.options["lookahead_m"]))
+                        float(req.options["lookahead_m"]))
 
 
 def mode_boxes(model: LateralModel, unc: float, v_c: float, v_lo: float, v_hi: float
@@ -123,18 +128,18 @@ def modes_from_options(opts: dict[str, Any]) -> list[tuple[float, float, float]]
     return [(float(v), float(v) - dv, float(v) + dv) for v in opts["mode_speeds_mps"]]
 
 
-def design_for(obs: SwitchedIntervalIfqir) -> DesignResult:
+def design_for(req: DesignRequest) -> DesignResult:
     """Cached, certified design for an observer instance (its vehicle and design options)."""
-    model = lateral_model(obs)
+    model = lateral_model(req)
     keys = ("mode_speeds_mps", "mode_halfwidth_mps", "stiffness_uncertainty", "lookahead_m", "epsilon",
             "eta", "common_Q")
-    opts = {k: obs.options[k] for k in keys}
+    opts = {k: req.options[k] for k in keys}
     settings = SolverSettings()
-    payload = {"family": "switched_interval_ifqir", "variant": obs.variant, "options": opts,
+    payload = {"family": "switched_interval_ifqir", "variant": req.variant, "options": opts,
                "solver": settings.to_dict(), "model": model.__dict__,
                "code": [harness.__version__, lmi.source_fingerprint(lmi, bicycle, design_for)]}
     return lmi.cached_design(payload, lambda: design(model, opts, settings),
-                             use_cache=bool(obs.options["use_cache"]))
+                             use_cache=bool(req.options["use_cache"]))
 
 
 def design(model: LateralModel, opts: dict[str, Any], settings: SolverSettings) -> DesignResult:

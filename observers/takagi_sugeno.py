@@ -17,10 +17,10 @@ relaxation ``tau = r_relax / v_x`` (``r_f = r_r``):
 ``alpha_f = delta - (v_y + a_f r)/v_x``, ``alpha_r = -(v_y - a_r r)/v_x``; 8 rules (23)-(24).
 Observer (31)-(32), typo ``h_i(x_hat)`` corrected to ``h_i(s_e)``:
 ``x_hat' = sum_i h_i(s_e) (A_i x_hat + B_i delta + L_i (r - x_hat_2))``, gains from Theorem 1
-(:mod:`observers.takagi_sugeno_design`). Forces (46):
+(:mod:`roadtruth.observers.takagi_sugeno_design`). Forces (46):
 ``F_f = (m a_r x_3 + I_z x_4)/(a_f + a_r)``, ``F_r = (m a_f x_3 - I_z x_4)/(a_f + a_r)``.
 
-Premises (25)-(28), S2 (9): a Levant differentiator (:mod:`observers.levant_differentiator`, order 2
+Premises (25)-(28), S2 (9): a Levant differentiator (:mod:`roadtruth.observers.levant_differentiator`, order 2
 = the paper's "third-order" HOSMD) on each camera channel gives ``y_L'``, ``psi_L'``; then
 ``v_y,alg = y_L' - v_x psi_L - l_s psi_L'`` (26) feeds the slips of the weights only, and the road
 curvature is algebraic (10)-(11): ``rho = (r - psi_L')/v_x`` (typo after (10) corrected).
@@ -36,7 +36,7 @@ Harness choices (documented options):
 * The TS vertices: ``tire_sectors="auto"`` uses the paper's ``M_f1, M_f2, M_r1, M_r2 = 4.2e4, 3.3e4,
   4.9e4, 3.3e4`` N/rad for its own car ``yacine2016`` and, for any other vehicle, the sector bounds
   ``[f_min, f_max]`` of ``f(alpha) = F(alpha)/alpha`` of the vehicle's Magic Formula axle curves
-  (``observers.tire_curves.axle_curves`` at friction ``mu``) over ``|alpha| <= slip_max_rad``;
+  (``roadtruth.observers.tire_curves.axle_curves`` at friction ``mu``) over ``|alpha| <= slip_max_rad``;
   ``"magic_formula"`` forces the latter, a 4-tuple gives them explicitly. The membership ``f`` of the
   premise is always the vehicle's Magic Formula secant (clipped into the sector).
 * ``vx_range_mps`` (default (3, 40); the paper's (0.2, 17) is too low for highway scenarios): the
@@ -75,14 +75,20 @@ from typing import Any
 
 import numpy as np
 
-from harness.errors import InputError
-from harness.tire import jit
-from observers.base import ScalarLoopObserver
-from observers.levant_differentiator import LAMBDAS, LevantDifferentiator
-from observers.lmi import DesignFailed, DesignResult, DesignStatus
-from observers.registry import register
-from observers.takagi_sugeno_design import RULES, SEED_STIFFNESS_NPR, TSModel, secant_slope, sector_bounds
-from observers.tire_curves import axle_curves
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.truth.tire import jit
+from roadtruth.observers.base import ScalarLoopObserver
+from roadtruth.observers.levant_differentiator import LAMBDAS, LevantDifferentiator
+from roadtruth.observers.lmi import DesignFailed, DesignResult, DesignStatus
+from roadtruth.observers.registry import register
+from roadtruth.observers.takagi_sugeno_design import (
+    RULES,
+    SEED_STIFFNESS_NPR,
+    TSModel,
+    secant_slope,
+    sector_bounds,
+)
+from roadtruth.observers.tire_curves import axle_curves
 
 # ---- compiled step -------------------------------------------------------------------------------
 
@@ -256,8 +262,8 @@ class TakagiSugenoYacine(ScalarLoopObserver):
         self._printed = o["rule_order"] == "as_printed"
 
     def _compute_design(self) -> DesignResult:
-        from observers.takagi_sugeno_design import design_for
-        result = design_for(self)
+        from roadtruth.observers.takagi_sugeno_design import design_for
+        result = design_for(self.design_request(self.ts_model))
         # Load/compile the kernel now, so the first estimation step is not charged with the JIT.
         ts_step(np.zeros(4), 0.01, 1.0, 1.0, 1.0, False, 0.0, 0.0, True, self._Av, self._Bv,
                 np.zeros((len(RULES), 4)), np.zeros(len(RULES)))

@@ -1,4 +1,4 @@
-r"""TS model and Theorem-1 LMI design of the Yacine et al. (2015) observer (see :mod:`observers.takagi_sugeno`).
+r"""TS model and Theorem-1 LMI design of the Yacine et al. (2015) observer (see :mod:`roadtruth.observers.takagi_sugeno`).
 
 Model (seed eqs. (13), (19)-(24)), ``x = (v_y, r, (F_f + F_r)/m, (a_f F_f - a_r F_r)/I_z)``, tire
 forces in sector form ``F^S = f(alpha) alpha`` with ``f in [M_2, M_1]`` per axle, speed ``v_x`` in
@@ -16,7 +16,7 @@ Theorem 1 (eq. (33)): find ``P = P^T > 0``, ``M_i``, ``c > 0`` with, for i = 1..
 ``C = (0 1 0 0)``, ``Gamma = (e_3, e_4)``. Solved in state coordinates scaled by
 ``S = diag(1, 1, s, s)`` (``s`` = ``state_scale``: without it the solvers return
 ``optimal_inaccurate``) with objective ``min c + 1e-3 tr P`` and ``P >= I``; the
-certificate (:func:`observers.lmi.certify_design`) re-checks the block at the 8 vertices and on a
+certificate (:func:`roadtruth.observers.lmi.certify_design`) re-checks the block at the 8 vertices and on a
 dense grid of ``(v_x, f_f, f_r)`` where ``A`` is rebuilt from the physical formula and ``L`` is the
 trilinear blend of the vertex gains (this validates the polytope embedding itself), plus the frozen
 closed-loop eigenvalues at rate ``alpha/2``. Any convex premise weights keep the certificate: the
@@ -28,16 +28,21 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-import harness
-from observers import lmi
-from observers.lmi import DesignResult, DesignStatus, SolverSettings, certify_design, solve_lmi, sym
-
-if TYPE_CHECKING:
-    from observers.takagi_sugeno import TakagiSugenoYacine
+import roadtruth.harness as harness
+from roadtruth.observers import lmi
+from roadtruth.observers.lmi import (
+    DesignRequest,
+    DesignResult,
+    DesignStatus,
+    SolverSettings,
+    certify_design,
+    solve_lmi,
+    sym,
+)
 
 C_OUT = np.array([[0.0, 1.0, 0.0, 0.0]])
 GAMMA = np.array([[0.0, 0.0], [0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
@@ -128,17 +133,17 @@ def _scaled(model: TSModel, scale: float) -> tuple[np.ndarray, np.ndarray, np.nd
     return S, C_OUT @ Si, S @ GAMMA, [S @ model.vertex(i)[0] @ Si for i in range(len(RULES))]
 
 
-def design_for(obs: TakagiSugenoYacine) -> DesignResult:
+def design_for(req: DesignRequest) -> DesignResult:
     """Cached design for an observer instance (its TS model, alpha and solver settings)."""
-    model: TSModel = obs.ts_model
+    model: TSModel = req.model
     settings = SolverSettings()
-    alpha = float(obs.options["decay_alpha"])
-    scale = float(obs.options["state_scale"])
+    alpha = float(req.options["decay_alpha"])
+    scale = float(req.options["state_scale"])
     payload = {"family": "takagi_sugeno", "model": asdict(model), "alpha": alpha, "state_scale": scale,
                "solver": settings.to_dict(),
                "code": [harness.__version__, lmi.source_fingerprint(lmi, design_for)]}
     return lmi.cached_design(payload, lambda: design(model, alpha, scale, settings),
-                             use_cache=bool(obs.options["use_cache"]))
+                             use_cache=bool(req.options["use_cache"]))
 
 
 def blend_gain(model: TSModel, gains: np.ndarray, vx: float, ff: float, fr: float) -> np.ndarray:

@@ -5,7 +5,7 @@ Axle lateral force (Pacejka, *Tire and Vehicle Dynamics*, 3rd ed., eq. 4.49), pu
     F(alpha) = D sin(C atan(B alpha - E (B alpha - atan(B alpha))))
 
 with the vehicle's per-axle shape ``(By, Cy, Ey)`` and the same friction scaling as the truth engine
-(``harness/tire.py``): the peak is ``D = k F_z,static`` with ``k = grip * mu`` (the tire's grip,
+(``harness/truth/tire.py``): the peak is ``D = k F_z,static`` with ``k = grip * mu`` (the tire's grip,
 ``VehicleParams.tires.grip``, times the road friction the filter assumes, option ``mu``) and
 ``B = By / k``, so the axle cornering stiffness ``B C D = By Cy F_z,static`` does not depend on
 either; only the peak (``k m g`` of lateral acceleration over both axles) and the peak slip move.
@@ -30,9 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from harness.errors import InputError
-from harness.tire import jit
-from harness.vehicle import G, VehicleParams
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.truth.tire import jit
+from roadtruth.harness.truth.vehicle import G, VehicleParams
 
 #: Indices of ``model_array``. ``M_FZF``/``M_FZR``: static axle loads [N]; ``M_GRIP``: the peak scale
 #: ``k`` the curves have now (``set_grip`` moves it; ``B D = By F_z`` is kept, so is the stiffness).

@@ -2,7 +2,7 @@ r"""Generalized (output-derivative) unknown-input observer of Nguyen, ch. 1, Sec
 
 Q. H. Nguyen, PhD thesis draft (Université de Lorraine, CRAN), ch. 1 "Learning with Unknown Input
 Observers for Robust Nonlinear Estimation", Section 4, on the vehicle of sec. 7.2. Model, corrections
-and LMIs: :mod:`observers.uio_generalized_design`. Observer (1.32):
+and LMIs: :mod:`roadtruth.observers.uio_generalized_design`. Observer (1.32):
 
 .. math::
 
@@ -41,18 +41,18 @@ from typing import Any
 
 import numpy as np
 
-from harness.errors import InputError
-from observers.base import EstimateTrack, ScalarLoopObserver, StepOutput
-from observers.levant_differentiator import levant_gains
-from observers.lmi import DesignResult, usable_gains
-from observers.registry import register
-from observers.uio_generalized_design import (
+from roadtruth.harness.errors import InputError
+from roadtruth.observers.base import EstimateTrack, ScalarLoopObserver, StepOutput
+from roadtruth.observers.levant_differentiator import levant_gains
+from roadtruth.observers.lmi import DesignResult, usable_gains
+from roadtruth.observers.registry import register
+from roadtruth.observers.uio_generalized_design import (
     N_BASIS,
     GeneralizedModel,
     generalized_model,
     unknown_input_matrix,
 )
-from observers.uio_generalized_loop import (
+from roadtruth.observers.uio_generalized_loop import (
     HAVE_ZETA,
     PSI_M,
     UIOKernelState,
@@ -60,7 +60,7 @@ from observers.uio_generalized_loop import (
     generalized_run,
     uio_update,
 )
-from observers.uio_nguyen_design import N_X, vehicle_model
+from roadtruth.observers.uio_nguyen_design import N_X, vehicle_model
 
 
 @register
@@ -126,8 +126,8 @@ class GeneralizedUIO(ScalarLoopObserver):
         return self._gm
 
     def _compute_design(self) -> DesignResult:
-        from observers.uio_generalized_design import design_for
-        return design_for(self)
+        from roadtruth.observers.uio_generalized_design import design_for
+        return design_for(self.design_request(self.generalized_model()))
 
     def constants(self) -> tuple[np.ndarray, ...]:
         """``(Fs, Gws, Q, Mp, Gp)``: basis of ``eta' = F eta + G (y_chi, u, u')`` and the prediction model."""
@@ -150,7 +150,7 @@ class GeneralizedUIO(ScalarLoopObserver):
         return self._consts
 
     def kernel_constants(self) -> tuple[Any, ...]:
-        """The constant arguments of :func:`~observers.uio_generalized_loop.generalized_run`.
+        """The constant arguments of :func:`~roadtruth.observers.uio_generalized_loop.generalized_run`.
 
         ``(Fb, Gb, d, Q, Mp, Gp, C_chi, dpsi, par, summed, levant)``: the basis balanced by the powers of
         two ``d``, ``Q_zeta``, the prediction model, ``D_bar[k0 + 1]`` (the psi row, zero when summed),

@@ -1,6 +1,6 @@
 r"""Generalized (output-derivative) UIO of Nguyen, ch. 1, Section 4: model, rank tests, certified design.
 
-Generalized model (1.27)-(1.30) on the vehicle (1.55)-(1.56) (:func:`observers.uio_nguyen_design.vehicle_model`),
+Generalized model (1.27)-(1.30) on the vehicle (1.55)-(1.56) (:func:`roadtruth.observers.uio_nguyen_design.vehicle_model`),
 ``chi_1 = y``, ``chi_2 = y'``, ``zeta = (chi_1, chi_2, x, mu)``, ``n_zeta = 2 n_y + n_x + n_mu``:
 
 .. math::
@@ -41,18 +41,23 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-import harness
-from harness.vehicle import VehicleParams
-from observers import lmi
-from observers.lmi import DesignResult, DesignStatus, SolverSettings, certify_design, solve_lmi, sym
-from observers.uio_nguyen_design import D_REG, MU_SCALE_N, N_X, VehicleModel, unmovable_modes
-
-if TYPE_CHECKING:
-    from observers.uio_generalized import GeneralizedUIO
+import roadtruth.harness as harness
+from roadtruth.harness.truth.vehicle import VehicleParams
+from roadtruth.observers import lmi
+from roadtruth.observers.lmi import (
+    DesignRequest,
+    DesignResult,
+    DesignStatus,
+    SolverSettings,
+    certify_design,
+    solve_lmi,
+    sym,
+)
+from roadtruth.observers.uio_nguyen_design import D_REG, MU_SCALE_N, N_X, VehicleModel, unmovable_modes
 
 #: Basis of the scheduling: J = sum_k c_k J_k with c = (1, v, 1/v, v^2, 1/v^2, a, a/v^2).
 N_BASIS = 7
@@ -268,18 +273,18 @@ def design(gm: GeneralizedModel, opts: dict[str, Any], settings: SolverSettings,
                         None if exact else lam, out.stats, variant)
 
 
-def design_for(obs: GeneralizedUIO) -> DesignResult:
+def design_for(req: DesignRequest) -> DesignResult:
     """Cached design for an observer instance (its vehicle, unknown input and design options)."""
-    v: VehicleParams = obs.vehicle
+    v: VehicleParams = req.vehicle
     keys = ("unknown_input", "delta2", "epsilon", "c_chi", "output_form", "vx_range_mps", "lmi_points", "grid_points")
-    opts = {k: obs.options[k] for k in keys}
+    opts = {k: req.options[k] for k in keys}
     settings = SolverSettings()
     payload = {
-        "family": "uio_generalized", "variant": obs.variant, "options": opts, "solver": settings.to_dict(),
+        "family": "uio_generalized", "variant": req.variant, "options": opts, "solver": settings.to_dict(),
         "vehicle": {"mass_kg": v.mass_kg, "yaw_inertia_kgm2": v.yaw_inertia_kgm2, "lf_m": v.lf_m, "lr_m": v.lr_m,
                     "cf_Npr": v.cornering_stiffness_f_Npr, "cr_Npr": v.cornering_stiffness_r_Npr},
         "code": [harness.__version__, lmi.source_fingerprint(lmi, design_for, design, generalized_model)],
     }
-    compute: Callable[[], DesignResult] = lambda: design(obs.generalized_model(), opts, settings,  # noqa: E731
-                                                         obs.variant)
-    return lmi.cached_design(payload, compute, use_cache=bool(obs.options["use_cache"]))
+    compute: Callable[[], DesignResult] = lambda: design(req.model, opts, settings,  # noqa: E731
+                                                         req.variant)
+    return lmi.cached_design(payload, compute, use_cache=bool(req.options["use_cache"]))

@@ -1,4 +1,4 @@
-"""The compiled kernel of the generalized UIO (:mod:`observers.uio_generalized`), shared by step() and run().
+"""The compiled kernel of the generalized UIO (:mod:`roadtruth.observers.uio_generalized`), shared by step() and run().
 
 :func:`generalized_run` is the whole per-sample update (latching, causal differentiators, integrated
 gyro and its re-centring, prediction while ``v_x`` / ``r`` are stale, re-seeding, the UIO step) on
@@ -28,8 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from harness.tire import jit
-from observers.uio_nguyen import SUBSTEP_RATE, TWO_PI, affine_rk4
+from roadtruth.harness.truth.tire import jit
+from roadtruth.observers.uio_nguyen import SUBSTEP_RATE, TWO_PI, affine_rk4
 
 #: Higham (2005) Table 2.3: largest 1-norm for which the [m/m] Padé approximant is accurate to
 #: double precision after scaling, m = 9 and 13.
@@ -462,7 +462,7 @@ def balanced_constants(Fs: np.ndarray, Gws: np.ndarray, v_mid: float) -> tuple[n
     """``(Fb, Gb, d)``: the basis under the power-of-two balancing ``D = diag(d)`` of ``F(v_mid, 0)``."""
     from scipy.linalg import matrix_balance
 
-    from observers.uio_generalized_design import basis
+    from roadtruth.observers.uio_generalized_design import basis
 
     _, (scale, _) = matrix_balance(np.tensordot(basis(v_mid, 0.0), Fs, axes=1), permute=False, separate=True)
     d = np.asarray(scale, dtype=float)

@@ -4,7 +4,7 @@ Q. H. Nguyen, PhD thesis draft (Université de Lorraine, CRAN), ch. 1 "Learning 
 Observers for Robust Nonlinear Estimation", Section 3 (eqs. (1.5)-(1.26)) and the vehicle of
 sec. 7.2 (eqs. (1.52)-(1.61)), **with corrections of printed equations that do not hold** (``D_bar = [0, -D]``,
 ``E_cal = P_zeta E_bar - ...``, ``D_cal = (I - H Q_zeta) D_bar``, ``+I`` in (1.26), vertices
-``n_x x n_zeta``). Model and LMIs: :mod:`observers.uio_nguyen_design`.
+``n_x x n_zeta``). Model and LMIs: :mod:`roadtruth.observers.uio_nguyen_design`.
 
 Observer (1.10), ``zeta = (v_x, v_y, psi, r, f_yf, f_yr)`` (forces in kN):
 
@@ -55,12 +55,12 @@ from typing import Any
 
 import numpy as np
 
-from harness.errors import InputError
-from harness.tire import jit
-from observers.base import ScalarLoopObserver
-from observers.lmi import DesignFailed, DesignResult, DesignStatus
-from observers.registry import register
-from observers.uio_nguyen_design import MU_SCALE_N, N_X, N_ZETA, scheduling_points, vehicle_model
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.truth.tire import jit
+from roadtruth.observers.base import ScalarLoopObserver
+from roadtruth.observers.lmi import DesignFailed, DesignResult, DesignStatus
+from roadtruth.observers.registry import register
+from roadtruth.observers.uio_nguyen_design import MU_SCALE_N, N_X, N_ZETA, scheduling_points, vehicle_model
 
 TWO_PI = 2.0 * math.pi
 SUBSTEP_RATE = 0.5  # largest ||M|| h_sub of one RK4 sub-step
@@ -150,8 +150,8 @@ class NguyenUIO(ScalarLoopObserver):
         self._consts: tuple[np.ndarray, ...] | None = None
 
     def _compute_design(self) -> DesignResult:
-        from observers.uio_nguyen_design import design_for
-        return design_for(self)
+        from roadtruth.observers.uio_nguyen_design import design_for
+        return design_for(self.design_request())
 
     def constants(self) -> tuple[np.ndarray, ...]:
         """``(Fs, Gs, Q, Ms, Gp, bounds)`` of the two affine ODEs; raises DesignFailed without gains.

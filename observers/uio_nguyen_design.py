@@ -1,4 +1,4 @@
-r"""Model, regularisation and certified LMI design of Nguyen's UIO (see :mod:`observers.uio_nguyen`).
+r"""Model, regularisation and certified LMI design of Nguyen's UIO (see :mod:`roadtruth.observers.uio_nguyen`).
 
 Vehicle model (1.52)-(1.56), small angles, ``x = (v_x, v_y, psi, r)``, ``u = (a, delta)``,
 ``y = (v_x, psi, r)``, ``mu = (f_yf, f_yr)`` in **kN** (in N, ``B_mu ~ 1e-3`` and the LMIs are ill-conditioned):
@@ -34,14 +34,15 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-import harness
-from harness.vehicle import VehicleParams
-from observers import lmi
-from observers.lmi import (
+import roadtruth.harness as harness
+from roadtruth.harness.truth.vehicle import VehicleParams
+from roadtruth.observers import lmi
+from roadtruth.observers.lmi import (
+    DesignRequest,
     DesignResult,
     DesignStatus,
     SolverSettings,
@@ -50,9 +51,6 @@ from observers.lmi import (
     solve_lmi,
     sym,
 )
-
-if TYPE_CHECKING:
-    from observers.uio_nguyen import NguyenUIO
 
 N_X, N_Y, N_MU = 4, 3, 2
 N_ZETA = N_X + N_MU
@@ -287,18 +285,18 @@ def _certify(model: VehicleModel, reg: Regularized, P: np.ndarray, Q: np.ndarray
     return cert, lam
 
 
-def design_for(obs: NguyenUIO) -> DesignResult:
+def design_for(req: DesignRequest) -> DesignResult:
     """Cached design for an observer instance (its vehicle and design options)."""
-    v = obs.vehicle
+    v = req.vehicle
     keys = ("delta1", "delta2", "epsilon", "vx_range_mps", "grid_points")
-    opts = {k: obs.options[k] for k in keys}
+    opts = {k: req.options[k] for k in keys}
     settings = SolverSettings()
     payload = {
-        "family": "uio_nguyen", "variant": obs.variant, "options": opts, "solver": settings.to_dict(),
+        "family": "uio_nguyen", "variant": req.variant, "options": opts, "solver": settings.to_dict(),
         "vehicle": {"mass_kg": v.mass_kg, "yaw_inertia_kgm2": v.yaw_inertia_kgm2, "lf_m": v.lf_m, "lr_m": v.lr_m,
                     "cf_Npr": v.cornering_stiffness_f_Npr, "cr_Npr": v.cornering_stiffness_r_Npr},
         "code": [harness.__version__, lmi.source_fingerprint(lmi, design_for)],
     }
     model = vehicle_model(v)
     compute: Callable[[], DesignResult] = lambda: design(model, opts, settings)  # noqa: E731
-    return lmi.cached_design(payload, compute, use_cache=bool(obs.options["use_cache"]))
+    return lmi.cached_design(payload, compute, use_cache=bool(req.options["use_cache"]))

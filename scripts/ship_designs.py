@@ -8,7 +8,7 @@ observer on each vehicle and exits 1, naming them, when any design was solved in
 a stale folder makes the check slow; a current one takes seconds.
 
 Every registered observer is designed with its default options on each vehicle in a scratch cache;
-the entries (``<key>.json`` + ``<key>.sha256``, the format of :mod:`harness.disk_cache`) are copied
+the entries (``<key>.json`` + ``<key>.sha256``, the format of :mod:`roadtruth.harness.files.disk_cache`) are copied
 into ``observers/designs/``, whose previous entries are replaced (the folder holds nothing else).
 A design key hashes the design's inputs and source code, so after editing an observer or design
 module, run this again; a stale entry is never used, only missed (the design is then solved at run
@@ -40,9 +40,9 @@ def main(argv: list[str] | None = None) -> int:
     os.environ["ROADTRUTH_CACHE"] = str(scratch)
     os.environ["ROADTRUTH_SHIPPED_DESIGNS"] = "0"
     sys.path.insert(0, str(ROOT))
-    from harness.vehicle import load_vehicle
-    from observers.lmi import SHIPPED_DESIGNS_DIR
-    from observers.registry import available_observers, create
+    from roadtruth.harness.truth.vehicle import load_vehicle
+    from roadtruth.observers.lmi import SHIPPED_DESIGNS_DIR
+    from roadtruth.observers.registry import available_observers, create
 
     total = 0.0
     for vname in [v.strip() for v in a.vehicles.split(",") if v.strip()]:
@@ -76,8 +76,8 @@ def check(vehicles: list[str]) -> int:
     os.environ["ROADTRUTH_CACHE"] = str(scratch)
     os.environ["ROADTRUTH_SHIPPED_DESIGNS"] = "1"
     sys.path.insert(0, str(ROOT))
-    from harness.vehicle import load_vehicle
-    from observers.registry import available_observers, create
+    from roadtruth.harness.truth.vehicle import load_vehicle
+    from roadtruth.observers.registry import available_observers, create
 
     missed: list[str] = []
     served = 0

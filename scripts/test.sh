@@ -19,5 +19,5 @@ python3 -m venv .venv
 .venv/bin/pip install -q --upgrade pip
 .venv/bin/pip install -q -e '.[test]'
 export MUJOCO_GL="${MUJOCO_GL:-egl}"
-.venv/bin/ruff check harness observers mjcf tests benchmarks
+.venv/bin/ruff check roadtruth harness observers mjcf tests benchmarks scripts
 .venv/bin/python -m pytest -q -n 2 "$@"

@@ -8,7 +8,7 @@ fails exactly when the front-left wheel drives on a μ below ``BREAKING_MU``, an
 
 from __future__ import annotations
 
-from observers.base import ScalarLoopObserver
+from roadtruth.observers.base import ScalarLoopObserver
 
 BREAKING_MU = 0.6
 

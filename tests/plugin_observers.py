@@ -2,7 +2,7 @@
 
 Each fails in one way an observer from a third party can: an ``InputError`` at run time, an exception
 in its design, ``sys.exit``, a native crash (SIGSEGV) and a hang. They are registered by the tests
-(``observers.registry.register``), not on import.
+(``roadtruth.observers.registry.register``), not on import.
 """
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ import signal
 import sys
 import time
 
-from harness.errors import InputError
-from observers.base import ScalarLoopObserver
-from observers.lmi import DesignResult
+from roadtruth.harness.errors import InputError
+from roadtruth.observers.base import ScalarLoopObserver
+from roadtruth.observers.lmi import DesignResult
 
 
 class _YawEcho(ScalarLoopObserver):

@@ -29,7 +29,7 @@ def _new_venv(root: Path) -> Path:
     # addsitedir (not a plain path line) so that the base's own .pth files (editable installs) apply.
     Path(purelib, "_roadtruth_base.pth").write_text(f"import site; site.addsitedir({base!r})\n")
     launcher = root / "bin" / "roadtruth"
-    launcher.write_text(f"#!{py}\nimport sys\nfrom harness.cli import main\nsys.exit(main())\n")
+    launcher.write_text(f"#!{py}\nimport sys\nfrom roadtruth.harness.cli import main\nsys.exit(main())\n")
     launcher.chmod(0o755)
     return root
 

@@ -1,7 +1,7 @@
 """A synthetic run folder (the files ``run_suite`` writes), built without simulating anything.
 
 Truth is a smooth analytic manoeuvre; three observers estimate it: a good one with bounds, a noisy
-Kalman-like one with variances, and one that failed. Metrics come from the real ``harness.scoring``.
+Kalman-like one with variances, and one that failed. Metrics come from the real ``roadtruth.harness.evaluation.scoring``.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from harness import scoring
+from roadtruth.harness.evaluation import scoring
 
 
 @dataclass(frozen=True)

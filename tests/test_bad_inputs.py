@@ -19,12 +19,12 @@ import pandas as pd
 import pytest
 from synthetic_run import make_run_folder
 
-from harness.cli import main
-from harness.errors import InputError
-from harness.replay_log import apply_map, load_column_map, read_log
-from harness.report.rundata import new_scenario_folder, scenario_folder_name
-from harness.scenario import scenarios_dir
-from harness.strict_yaml import MAX_YAML_BYTES, load_mapping
+from roadtruth.harness.cli import main
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.files.strict_yaml import MAX_YAML_BYTES, load_mapping
+from roadtruth.harness.jobs.replay_log import apply_map, load_column_map, read_log
+from roadtruth.harness.report.rundata import new_scenario_folder, scenario_folder_name
+from roadtruth.harness.truth.scenario import scenarios_dir
 
 
 def bad_input(capsys: pytest.CaptureFixture[str], args: list[str], *needles: str) -> str:
@@ -152,7 +152,7 @@ def test_column_map_scale_in_exponent_form(tmp_path: Path) -> None:
 
 
 def test_thresholds_in_exponent_form(tmp_path: Path) -> None:
-    from harness.check_rules import load_thresholds
+    from roadtruth.harness.jobs.check_rules import load_thresholds
 
     gate = tmp_path / "gate.yaml"
     gate.write_text("rules:\n  - {metric: rmse, max: 1e-6}\n  - {metric: coverage, min: 9.5e-1}\n")

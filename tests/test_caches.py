@@ -9,11 +9,11 @@ from pathlib import Path
 
 import pytest
 
-from harness.disk_cache import CACHE_ENV, read_entry, write_entry
-from harness.vehicle import load_vehicle
-from observers import lmi
-from observers.lmi import DesignStatus
-from observers.registry import create
+from roadtruth.harness.files.disk_cache import CACHE_ENV, read_entry, write_entry
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers import lmi
+from roadtruth.observers.lmi import DesignStatus
+from roadtruth.observers.registry import create
 
 #: An "as printed" variant whose certification fails (the printed gain is not Metzler): a cheap design
 #: that is REJECTED, the case where a lying cache would do harm.
@@ -114,7 +114,7 @@ def test_roadtruth_cache_environment_variable_is_respected(cache_root: Path) -> 
 
 
 def test_cache_dir_option_sets_the_cache_for_the_command(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from harness.cli import build_parser
+    from roadtruth.harness.cli import build_parser
 
     monkeypatch.setenv(CACHE_ENV, str(tmp_path / "elsewhere"))  # restored after the test
     build_parser().parse_args(["stress", "--cache-dir", str(tmp_path / "mine"), "--seeds", "1"])
@@ -167,7 +167,7 @@ def test_shipped_designs_are_read_after_the_user_cache_and_checked_like_it(
 _SOLVE_LOGGER = '''
 import os
 if os.environ.get("ROADTRUTH_TEST_SOLVE_LOG"):
-    import observers.lmi as _lmi
+    import roadtruth.observers.lmi as _lmi
     _cached_design = _lmi.cached_design
 
     def _counted(payload, compute, **kw):
@@ -194,7 +194,7 @@ def test_parallel_workers_on_a_fresh_cache_solve_each_design_once(cache_root: Pa
 
     import pandas as pd
 
-    from harness.stress import run_stress
+    from roadtruth.harness.jobs.stress import run_stress
 
     if dask:
         pytest.importorskip("distributed")
@@ -214,8 +214,7 @@ def test_parallel_workers_on_a_fresh_cache_solve_each_design_once(cache_root: Pa
     # A second, serial sweep on another empty cache solves it again (the logger does count) and
     # gives the same rows: a design read back from the cache is the design that was solved.
     monkeypatch.setenv(CACHE_ENV, str(tmp_path / "cache2"))
-    from harness import observer_host
-
+    from roadtruth.harness.evaluation import observer_host
     observer_host.shutdown()  # a host this process started earlier would lack the logger
     ser = run_stress(out=tmp_path / "ser", jobs=1, **kw)  # type: ignore[arg-type]
     assert len(_solves(log)) == 2 and _solves(log)[1][1] == solves[0][1]

@@ -10,10 +10,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from harness.car_model import build_mjcf, corner_geometry
-from harness.errors import VehicleError
-from harness.scenario import load_scenario
-from harness.vehicle import G, available_vehicles, load_vehicle
+from roadtruth.harness.errors import VehicleError
+from roadtruth.harness.truth.car_model import build_mjcf, corner_geometry
+from roadtruth.harness.truth.scenario import load_scenario
+from roadtruth.harness.truth.vehicle import G, available_vehicles, load_vehicle
 
 
 def _composite_inertia(m: mujoco.MjModel, d: mujoco.MjData) -> tuple[float, np.ndarray, np.ndarray]:

@@ -15,10 +15,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness import scoring
-from harness.check import CheckResult, evaluate
-from harness.check_junit import junit_xml
-from harness.check_rules import (
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.evaluation import scoring
+from roadtruth.harness.jobs.check import CheckResult, evaluate
+from roadtruth.harness.jobs.check_junit import junit_xml
+from roadtruth.harness.jobs.check_rules import (
     DEFAULT_THRESHOLDS,
     BaselineError,
     RegressionSpec,
@@ -29,7 +30,6 @@ from harness.check_rules import (
     propose_rules,
     round_up,
 )
-from harness.errors import InputError
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -255,7 +255,7 @@ def test_proposed_rules_pass_their_runs_and_catch_doubled_error(tmp_path: Path):
 
 
 def test_simulation_status_other_than_ok_fails():
-    from harness.check import simulation_outcomes
+    from roadtruth.harness.jobs.check import simulation_outcomes
 
     out = simulation_outcomes([{"name": "a", "status": "ok"}, {"name": "b", "status": "diverged: car flipped"}])
     assert [o.verdict for o in out] == ["pass", "fail"]
@@ -269,7 +269,7 @@ def test_simulation_status_other_than_ok_fails():
 
 def _cli(*args: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "MUJOCO_GL": "egl"}
-    return subprocess.run([sys.executable, "-m", "harness.cli", "check", *args], cwd=REPO, env=env,
+    return subprocess.run([sys.executable, "-m", "roadtruth.harness.cli", "check", *args], cwd=REPO, env=env,
                           capture_output=True, text=True, timeout=300)
 
 
@@ -355,7 +355,7 @@ def test_not_applicable_checks_are_junit_skipped_with_their_reason():
 
 
 def test_check_page_opens_with_the_verdict_and_the_failed_rules(tmp_path: Path):
-    from harness.check_page import check_page
+    from roadtruth.harness.report.check_page import check_page
 
     m = metrics_frame()
     m.loc[0, "rmse"] = 0.5
@@ -415,7 +415,7 @@ def test_cli_check_with_a_malformed_baseline_exits_2_with_one_line_before_any_wo
 # ---- the "unusable" verdict on a state whose truth is zero -------------------------------------------------
 
 def _score_rho(truth_rho: np.ndarray, est_rho: np.ndarray, t: np.ndarray) -> str:
-    """Status of one curvature estimate scored by ``harness.scoring.score`` (band 1e-3 1/m)."""
+    """Status of one curvature estimate scored by ``roadtruth.harness.evaluation.scoring.score`` (band 1e-3 1/m)."""
     truth = pd.DataFrame({"t_s": t, "rho_1pm": truth_rho})
     est = pd.DataFrame({"t_s": t, "observer": "o", "state": "rho_1pm", "value": est_rho})
     run = SimpleNamespace(status="ok", us_per_step=1.0, certified=False, design_reason="", n_steps=t.size)
@@ -488,7 +488,7 @@ def test_shipped_gate_passes_on_a_representative_subset(tmp_path: Path):
     rho = (metrics.scenario == "step_steer") & (metrics.observer == "ts_yacine") & (metrics.state == "rho_1pm")
     assert list(metrics.loc[rho, "status"]) == ["ok"]
     # The gate trips when a gated estimate breaks: ten times the RMSE, or a status that is not ok.
-    from harness.check_rules import load_thresholds
+    from roadtruth.harness.jobs.check_rules import load_thresholds
 
     spec = load_thresholds(DEFAULT_THRESHOLDS)
     worse = metrics.assign(rmse=metrics.rmse * 10.0)
@@ -504,7 +504,7 @@ def test_shipped_gate_passes_on_a_representative_subset(tmp_path: Path):
 def test_shipped_gate_covers_every_registered_observer():
     """Each registered observer is gated on some ci scenario (status and rmse) or named in a comment
     saying why not (not applicable, unusable, diverged)."""
-    from observers.registry import observer_info
+    from roadtruth.observers.registry import observer_info
 
     spec = load_thresholds(DEFAULT_THRESHOLDS)
     text = DEFAULT_THRESHOLDS.read_text()

@@ -17,11 +17,11 @@ import pytest
 import yaml
 from scaffold_env import fresh_venv, run_shell, venv_env
 
-from harness.scaffold import init_project
+from roadtruth.harness.jobs.scaffold import init_project
 
 
 def _template(name: str) -> dict:
-    return yaml.safe_load((files("harness") / "ci_templates" / name).read_text())
+    return yaml.safe_load((files("roadtruth.harness") / "ci_templates" / name).read_text())
 
 
 def _github() -> dict:

@@ -9,11 +9,11 @@ from pathlib import Path
 
 import pytest
 
-from harness.cli import main
+from roadtruth.harness.cli import main
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "harness.cli", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "roadtruth.harness.cli", *args], capture_output=True, text=True,
                           timeout=300)
 
 
@@ -55,8 +55,8 @@ def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path: Path) -> Non
 def test_scenario_listing_gives_the_rows_of_a_full_load(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """`roadtruth scenarios` reads only the headers; every row equals what loading the scenario gives,
     computed or remembered."""
-    from harness.scenario import available_scenarios, load_scenario
-    from harness.scenario_index import scenario_summaries
+    from roadtruth.harness.truth.scenario import available_scenarios, load_scenario
+    from roadtruth.harness.truth.scenario_index import scenario_summaries
 
     monkeypatch.setenv("ROADTRUTH_CACHE", str(tmp_path / "cache"))
     rows = scenario_summaries()
@@ -83,7 +83,7 @@ def _loaded_after(code: str) -> list[str]:
 def test_scenarios_command_imports_none_of_the_compiled_or_report_stack(tmp_path: Path) -> None:
     """Listing scenarios never imports numba & co.; a repeat listing does not even parse YAML."""
     code = (f"import os\nos.environ['ROADTRUTH_CACHE'] = {str(tmp_path / 'cache')!r}\n"
-            "from harness.cli import main\n"
+            "from roadtruth.harness.cli import main\n"
             "with contextlib.redirect_stdout(io.StringIO()) as out:\n"
             "    assert main(['scenarios']) == 0\n"
             "assert 'step_steer' in out.getvalue()\n"
@@ -99,7 +99,7 @@ def test_simulate_path_imports_neither_the_report_builder_nor_scipy_signal() -> 
     """`roadtruth simulate` of a flat road on Magic Formula tires writes tables and JSON: no page
     builder (jinja2, plotly), none of scipy's signal, optimize (tire-file fits), spatial (projection
     without a path hint) or interpolate (road profiles) subpackages."""
-    loaded = _loaded_after("import harness.pipeline, harness.sensors, harness.simulate, harness.table_io")
+    loaded = _loaded_after("import roadtruth.harness.jobs.pipeline, roadtruth.harness.sensors, roadtruth.harness.truth.simulate, roadtruth.harness.files.table_io")
     assert not {"jinja2", "plotly", "scipy.signal", "scipy.optimize", "scipy.spatial", "scipy.interpolate"} & set(loaded), loaded
 
 
@@ -127,7 +127,7 @@ def test_observer_listing_is_remembered_and_then_imports_no_observer(tmp_path: P
     import os
 
     env = {**os.environ, "ROADTRUTH_CACHE": str(tmp_path / "cache")}
-    probe = ("import sys, json, contextlib, io\nfrom harness.cli import main\n"
+    probe = ("import sys, json, contextlib, io\nfrom roadtruth.harness.cli import main\n"
              "with contextlib.redirect_stdout(io.StringIO()) as out:\n    assert main(['observers', '--json']) == 0\n"
              f"print(json.dumps({{'out': out.getvalue(), 'heavy': [m for m in {HEAVY!r} if m in sys.modules]}}))")
     runs = []
@@ -138,7 +138,7 @@ def test_observer_listing_is_remembered_and_then_imports_no_observer(tmp_path: P
     assert "numba" in runs[0]["heavy"]  # the first listing imports the observers ...
     assert runs[1]["heavy"] == []       # ... the second does not
     assert runs[0]["out"] == runs[1]["out"]
-    from observers.registry import observer_info
+    from roadtruth.observers.registry import observer_info
 
     assert runs[1]["out"] == json.dumps(observer_info(), indent=2, default=str) + "\n"
 
@@ -146,8 +146,7 @@ def test_observer_listing_is_remembered_and_then_imports_no_observer(tmp_path: P
 def test_observer_catalog_key_follows_every_source_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     import os
 
-    from harness import observer_catalog
-
+    from roadtruth.harness.evaluation import observer_catalog
     pkgs = {name: tmp_path / name for name in observer_catalog.PACKAGES}
     for d in pkgs.values():
         (d / "sub").mkdir(parents=True)

@@ -8,12 +8,12 @@ from pathlib import Path
 
 import pytest
 
-from harness.scenario import scenarios_dir
-from harness.vehicle import vehicles_dir
+from roadtruth.harness.truth.scenario import scenarios_dir
+from roadtruth.harness.truth.vehicle import vehicles_dir
 
 
 def roadtruth(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "harness.cli", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "roadtruth.harness.cli", *args], capture_output=True, text=True,
                           cwd=cwd, timeout=600)
 
 

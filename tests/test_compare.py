@@ -14,8 +14,8 @@ import pandas as pd
 import pytest
 from synthetic_run import make_run_folder
 
-from harness.compare import compare, compare_runs
-from harness.errors import InputError
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.jobs.compare import compare, compare_runs
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -165,7 +165,7 @@ def test_malformed_metrics_files_are_one_line_errors_for_compare(tmp_path: Path)
         frame.to_csv(folder / "metrics.csv", index=False)
         with pytest.raises(InputError, match=re.escape(message)):
             compare(a, folder)
-        res = subprocess.run([sys.executable, "-m", "harness.cli", "compare", str(a), str(folder), "--out",
+        res = subprocess.run([sys.executable, "-m", "roadtruth.harness.cli", "compare", str(a), str(folder), "--out",
                               str(tmp_path / f"out_{name}")], cwd=REPO, capture_output=True, text=True, timeout=120)
         assert res.returncode == 2, res.stderr
         err = res.stderr.strip().splitlines()

@@ -11,12 +11,12 @@ import jsonschema
 import pytest
 import yaml
 
-from harness import cli
-from harness.config_schema import FORMATS, schema, shipped_files
-from harness.errors import InputError
-from harness.scenario import parse_scenario
-from harness.strict_yaml import load_mapping, parse_yaml
-from harness.vehicle import parse_vehicle
+from roadtruth.harness import cli
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.files.config_schema import FORMATS, schema, shipped_files
+from roadtruth.harness.files.strict_yaml import load_mapping, parse_yaml
+from roadtruth.harness.truth.scenario import parse_scenario
+from roadtruth.harness.truth.vehicle import parse_vehicle
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -79,7 +79,7 @@ def test_schema_ranges_are_the_parser_ranges() -> None:
     assert s["properties"]["mass_kg"] == {"type": "number", "minimum": 50.0, "maximum": 40000.0}
     steer = schema("scenario")["properties"]["driver"]["properties"]["steer"]
     steer = next(v for v in steer.get("anyOf", [steer]) if v.get("type") == "object")
-    from harness.driver import STEER_TYPES
+    from roadtruth.harness.truth.driver import STEER_TYPES
 
     assert set(steer["properties"]["type"]["enum"]) == set(STEER_TYPES)
 
@@ -112,7 +112,7 @@ def test_yaml_1_2_numbers() -> None:
 
 
 def test_a_vehicle_file_with_exponent_numbers_loads(tmp_path: Path) -> None:
-    from harness.vehicle import load_vehicle
+    from roadtruth.harness.truth.vehicle import load_vehicle
 
     text = (ROOT / "harness/vehicles/sedan.yaml").read_text()
     sedan = load_vehicle("sedan")

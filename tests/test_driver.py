@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from harness.driver import (
+from roadtruth.harness.errors import ScenarioError
+from roadtruth.harness.truth.driver import (
     HOLD_DECEL_MPS2,
     MAX_DECEL_DEMAND,
     ackermann_angles,
@@ -16,7 +17,6 @@ from harness.driver import (
     rate_limit,
     speed_controller,
 )
-from harness.errors import ScenarioError
 
 DT = 0.001
 T = np.arange(0.0, 8.0 + DT / 2, DT)

@@ -8,11 +8,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.errors import InputError
-from harness.estimate import ESTIMATE_COLUMNS, run_observers
-from harness.vehicle import load_vehicle
-from observers import registry
-from observers.base import ScalarLoopObserver
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.evaluation.estimate import ESTIMATE_COLUMNS, run_observers
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers import registry
+from roadtruth.observers.base import ScalarLoopObserver
 
 SEDAN = load_vehicle("sedan")
 
@@ -126,7 +126,7 @@ def test_bad_requests_are_input_errors() -> None:
 def test_nan_is_no_estimate_and_inf_is_divergence() -> None:
     """Leading NaN = not started (fine); NaN later = a numerical failure unless the observer withholds
     estimates without input; ±inf is always a divergence."""
-    from harness.estimate import _diverged
+    from roadtruth.harness.evaluation.estimate import _diverged
 
     t = np.arange(100) * 0.01
     x = np.ones((100, 2))

@@ -14,10 +14,10 @@ import falsify_observers
 import pandas as pd
 import pytest
 
-from harness.cli import main
-from harness.falsify import run_falsify
-from harness.pipeline import run_suite
-from observers import registry
+from roadtruth.harness.cli import main
+from roadtruth.harness.jobs.falsify import run_falsify
+from roadtruth.harness.jobs.pipeline import run_suite
+from roadtruth.observers import registry
 
 SCENARIO = """\
 name: short_straight

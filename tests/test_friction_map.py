@@ -10,8 +10,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from harness.errors import ScenarioError
-from harness.friction_map import SURFACES, FrictionMap, friction_from_spec, mu_at, parse_friction
+from roadtruth.harness.errors import ScenarioError
+from roadtruth.harness.truth.friction_map import (
+    SURFACES,
+    FrictionMap,
+    friction_from_spec,
+    mu_at,
+    parse_friction,
+)
 
 SRC = "test.yaml"
 

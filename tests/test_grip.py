@@ -9,10 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from harness.scenario import parse_scenario
-from harness.simulate import simulate
-from harness.tire import combined_slip_forces
-from harness.vehicle import G, VehicleParams, load_vehicle
+from roadtruth.harness.truth.scenario import parse_scenario
+from roadtruth.harness.truth.simulate import simulate
+from roadtruth.harness.truth.tire import combined_slip_forces
+from roadtruth.harness.truth.vehicle import G, VehicleParams, load_vehicle
 
 
 def _with_grip(v: VehicleParams, grip: float) -> VehicleParams:

@@ -57,9 +57,9 @@ f.addEventListener("load", function () {{
 
 
 def _check_page(root: Path) -> Path:
-    from harness.check import CheckResult, evaluate
-    from harness.check_page import check_page
-    from harness.check_rules import DEFAULT_THRESHOLDS, Rule
+    from roadtruth.harness.jobs.check import CheckResult, evaluate
+    from roadtruth.harness.jobs.check_rules import DEFAULT_THRESHOLDS, Rule
+    from roadtruth.harness.report.check_page import check_page
 
     rows = []
     for sc in ("step_steer", "brake_in_turn", "split_mu_braking"):
@@ -82,7 +82,7 @@ def _check_page(root: Path) -> Path:
 def _compare_page(root: Path) -> Path:
     from synthetic_run import make_run_folder
 
-    from harness.compare import compare
+    from roadtruth.harness.jobs.compare import compare
 
     a = make_run_folder(root / "a", scenarios=("step_steer", "ice_patch", "lane_change_with_a_long_name"))
     b = make_run_folder(root / "b", scenarios=("step_steer", "lane_change_with_a_long_name", "double_lane_change"))
@@ -100,7 +100,7 @@ def _compare_page(root: Path) -> Path:
 def _stress_page(root: Path) -> Path:
     from stress_synthetic import RUN, stress_rows
 
-    from harness.stress_report import summarize, write_index
+    from roadtruth.harness.report.stress_report import summarize, write_index
 
     root.mkdir(parents=True, exist_ok=True)
     return write_index(root, summarize(stress_rows()), RUN)

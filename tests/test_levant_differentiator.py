@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from observers.levant_differentiator import LAMBDAS, LevantDifferentiator, levant_gains
+from roadtruth.observers.levant_differentiator import LAMBDAS, LevantDifferentiator, levant_gains
 
 
 def _track(order: int, lipschitz: float, tau: float, t_end: float = 12.0, noise: float = 0.0,

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from scipy.spatial import Delaunay
 
-from harness.vehicle import load_vehicle
-from observers import lmi
-from observers.bicycle import slip_model_terms
-from observers.lmi import (
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers import lmi
+from roadtruth.observers.bicycle import slip_model_terms
+from roadtruth.observers.lmi import (
     DesignStatus,
     certify_design,
     is_metzler,
@@ -19,8 +19,8 @@ from observers.lmi import (
     robust_vertices,
     trapezoid_vertices,
 )
-from observers.lpv_wang_design import _decay_checks
-from observers.registry import create
+from roadtruth.observers.lpv_wang_design import _decay_checks
+from roadtruth.observers.registry import create
 
 V_RNG, A_RNG = (15 / 3.6, 150 / 3.6), (-8.0, 8.0)
 

@@ -8,9 +8,9 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from harness.cli import main
-from harness.scenario import load_scenario
-from harness.vehicle import load_vehicle
+from roadtruth.harness.cli import main
+from roadtruth.harness.truth.scenario import load_scenario
+from roadtruth.harness.truth.vehicle import load_vehicle
 
 
 def test_model_file_has_the_vehicle_mass_and_the_scenario_start(tmp_path: Path) -> None:

@@ -22,13 +22,13 @@ import plugin_observers
 import pytest
 import worker_tasks
 
-from harness import observer_host
-from harness.errors import InputError
-from harness.estimate import default_observer_timeout, run_observers
-from harness.pipeline import run_suite
-from harness.vehicle import load_vehicle
-from harness.worker_pool import WorkerCrashed, WorkerPool
-from observers import registry
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.evaluation import observer_host
+from roadtruth.harness.evaluation.estimate import default_observer_timeout, run_observers
+from roadtruth.harness.jobs.pipeline import run_suite
+from roadtruth.harness.jobs.worker_pool import WorkerCrashed, WorkerPool
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers import registry
 
 pytestmark = pytest.mark.usefixtures("isolated_design_cache")
 
@@ -99,7 +99,7 @@ def test_default_budget_scales_with_the_duration_and_bad_budgets_are_input_error
 
 def _host_pids() -> set[int]:
     me = os.getpid()
-    return {pid for pid, (ppid, cmd) in _processes().items() if ppid == me and "harness.observer_host" in cmd}
+    return {pid for pid, (ppid, cmd) in _processes().items() if ppid == me and "roadtruth.harness.evaluation.observer_host" in cmd}
 
 
 def test_ctrl_c_still_stops_the_run_and_takes_the_observer_process_with_it(plugins) -> None:
@@ -157,7 +157,7 @@ def test_pool_fails_only_the_task_whose_worker_crashed_and_replaces_the_worker()
 
 
 def test_a_crashed_sweep_case_keeps_the_columns_of_a_case_and_says_why() -> None:
-    from harness.stress import StressCase, _crashed_case, run_case
+    from roadtruth.harness.jobs.stress import StressCase, _crashed_case, run_case
 
     case = StressCase(index=3, scenario="step_steer", friction="0.5", faults="none", seed_index=0, seed=7,
                       observers=(GOOD,))
@@ -229,7 +229,7 @@ def plugin_env(tmp_path: Path) -> dict[str, str]:
 
 
 def _roadtruth(args: list[str], env: dict[str, str]) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "harness.cli", *args], env=env, start_new_session=True,
+    return subprocess.Popen([sys.executable, "-m", "roadtruth.harness.cli", *args], env=env, start_new_session=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -245,7 +245,7 @@ def test_a_crashed_scenario_worker_costs_only_its_scenario(tmp_path: Path, plugi
             procs = _processes()
             group = _group(proc.pid)
             for pid, (ppid, cmd) in procs.items():
-                if pid in group and "harness.observer_host" in cmd and ppid != proc.pid:
+                if pid in group and "roadtruth.harness.evaluation.observer_host" in cmd and ppid != proc.pid:
                     return ppid
             return None
 

@@ -13,8 +13,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.cli import main
-from harness.observer_options import (
+from roadtruth.harness.cli import main
+from roadtruth.harness.evaluation.observer_options import (
     ObserverOptionsError,
     check_observer_options,
     options_from_cli,
@@ -83,7 +83,7 @@ def test_values_are_yaml_scalars_and_the_command_line_overrides_the_file(tmp_pat
 
 
 def test_options_change_the_result_and_are_recorded(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from harness.pipeline import run_suite
+    from roadtruth.harness.jobs.pipeline import run_suite
 
     base = run_suite(scenarios=["step_steer"], observers=["kf_bicycle"], seed=3, out=tmp_path / "a",
                      render=False, progress=False)
@@ -103,7 +103,7 @@ def test_options_change_the_result_and_are_recorded(tmp_path: Path, capsys: pyte
 
 
 def test_replay_api_options_take_effect_and_are_recorded(tmp_path: Path) -> None:
-    from harness.replay import replay
+    from roadtruth.harness.jobs.replay import replay
 
     t = np.arange(0.0, 8.0, 0.01)
     rng = np.random.default_rng(2)
@@ -123,7 +123,7 @@ def test_replay_api_options_take_effect_and_are_recorded(tmp_path: Path) -> None
 
 
 def test_options_are_part_of_the_stress_case_key() -> None:
-    from harness.stress_cache import CaseKeys
+    from roadtruth.harness.jobs.stress_cache import CaseKeys
 
     keys = CaseKeys()
     plain = keys.key("step_steer", None, None, 11, ("kf_bicycle",))

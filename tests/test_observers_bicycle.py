@@ -7,9 +7,9 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
-from harness.vehicle import load_vehicle
-from observers.bicycle import alpha_model, ay_output, beta_r_model, expm2_zoh, vy_r_model
-from observers.registry import create
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers.bicycle import alpha_model, ay_output, beta_r_model, expm2_zoh, vy_r_model
+from roadtruth.observers.registry import create
 
 SEDAN = load_vehicle("sedan")
 

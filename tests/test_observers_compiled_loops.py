@@ -12,14 +12,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from harness.vehicle import load_vehicle
-from observers.base import ScalarLoopObserver
-from observers.registry import available_observers, create, observer_class
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers.base import ScalarLoopObserver
+from roadtruth.observers.registry import available_observers, create, observer_class
 
 SEDAN = load_vehicle("sedan")
 
 #: Families whose run() is a compiled loop (module -> the observers it registers).
-COMPILED_MODULES = ("observers.high_gain_radar", "observers.high_gain_methods", "observers.finite_time_interval")
+COMPILED_MODULES = ("roadtruth.observers.high_gain_radar", "roadtruth.observers.high_gain_methods", "roadtruth.observers.finite_time_interval")
 COMPILED = [n for n in available_observers() if observer_class(n).__module__ in COMPILED_MODULES]
 
 pytestmark = pytest.mark.usefixtures("isolated_design_cache")

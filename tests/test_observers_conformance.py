@@ -7,12 +7,12 @@ import warnings
 import numpy as np
 import pytest
 
-from harness.errors import InputError
-from harness.signals import ESTIMABLE
-from harness.vehicle import load_vehicle
-from observers import registry
-from observers.base import ScalarLoopObserver
-from observers.registry import ObserverRegistryError, available_observers, create, observer_info
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.signals import ESTIMABLE
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers import registry
+from roadtruth.observers.base import ScalarLoopObserver
+from roadtruth.observers.registry import ObserverRegistryError, available_observers, create, observer_info
 
 SEDAN = load_vehicle("sedan")
 NAMES = available_observers()
@@ -149,7 +149,7 @@ def test_broken_plugin_only_warns(monkeypatch: pytest.MonkeyPatch) -> None:
             raise ImportError("no module named nowhere")
 
     class GoodEntryPoint:
-        name, value = "good", "observers.bicycle:KinematicVy"
+        name, value = "good", "roadtruth.observers.bicycle:KinematicVy"
 
         def load(self) -> type:
             return registry.observer_class("kinematic_vy")

@@ -8,10 +8,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.vehicle import load_vehicle
-from observers.finite_time_interval_design import closed_loop
-from observers.lmi import DesignStatus
-from observers.registry import create
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers.finite_time_interval_design import closed_loop
+from roadtruth.observers.lmi import DesignStatus
+from roadtruth.observers.registry import create
 
 pytestmark = pytest.mark.usefixtures("isolated_design_cache")
 TS = 0.1  # the thesis's step (author's code)
@@ -187,7 +187,7 @@ def test_certification_of_every_variant(carla) -> None:
 
 
 def test_mujoco_suite_rows(tmp_path) -> None:
-    from harness.pipeline import run_suite
+    from roadtruth.harness.jobs.pipeline import run_suite
 
     names = ["flpv_interval_bessafa", "flpv_interval_bessafa_printed", "interval_efimov_lpv", "finite_time_chaibdraa"]
     out = run_suite(scenarios=["double_lane_change"], observers=names, render=False, out=tmp_path / "run",

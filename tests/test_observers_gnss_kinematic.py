@@ -9,10 +9,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.sensors import emulate, load_sensor_config
-from harness.vehicle import load_vehicle
-from observers.gnss_kinematic_design import PRINTED_BASE, iss_bound
-from observers.registry import create
+from roadtruth.harness.sensors import emulate, load_sensor_config
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers.gnss_kinematic_design import PRINTED_BASE, iss_bound
+from roadtruth.observers.registry import create
 
 SEDAN = load_vehicle("sedan")
 pytestmark = pytest.mark.usefixtures("isolated_design_cache")
@@ -121,7 +121,7 @@ def test_position_only_dropout_keeps_speed() -> None:
 
 
 def test_runs_in_the_harness_on_gnss_drive(tmp_path) -> None:
-    from harness.pipeline import run_suite
+    from roadtruth.harness.jobs.pipeline import run_suite
 
     names = ["hgo_gnss_kinematic", "ekf_gnss_kinematic"]
     out = run_suite(scenarios=["gnss_drive"], observers=names, render=False, out=tmp_path / "run",

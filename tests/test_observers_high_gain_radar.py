@@ -19,12 +19,17 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from harness.errors import InputError
-from harness.vehicle import load_vehicle
-from observers.high_gain_radar import SEED_LEAD
-from observers.high_gain_radar_design import PRINTED_SHGO, certify_gains, gradient_corners, lipschitz_kf
-from observers.lmi import DesignStatus
-from observers.registry import create
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers.high_gain_radar import SEED_LEAD
+from roadtruth.observers.high_gain_radar_design import (
+    PRINTED_SHGO,
+    certify_gains,
+    gradient_corners,
+    lipschitz_kf,
+)
+from roadtruth.observers.lmi import DesignStatus
+from roadtruth.observers.registry import create
 
 SEDAN = load_vehicle("sedan")
 NAMES = ("hgo_radar_standard", "hgo_radar_multi", "hgo_radar_standard_printed")
@@ -220,8 +225,8 @@ def test_options_are_checked() -> None:
 
 
 def test_truth_lead_acceleration_is_the_exact_slope_of_the_speed_profile() -> None:
-    from harness.scenario import load_scenario
-    from harness.simulate import simulate
+    from roadtruth.harness.truth.scenario import load_scenario
+    from roadtruth.harness.truth.simulate import simulate
 
     sc = dataclasses.replace(load_scenario("car_following"), duration_s=6.0)
     f = simulate(sc).frame
@@ -241,7 +246,7 @@ def car_following_run(tmp_path_factory: pytest.TempPathFactory) -> tuple:
     """``roadtruth run --scenario car_following --observer <the three> --no-render`` (automotive sensors)."""
     import pandas as pd
 
-    from harness.pipeline import run_suite
+    from roadtruth.harness.jobs.pipeline import run_suite
 
     out = run_suite(scenarios=["car_following"], observers=list(CF_NAMES), out=tmp_path_factory.mktemp("cf") / "r",
                     render=False, progress=False)

@@ -8,12 +8,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from harness.errors import InputError
-from harness.vehicle import load_vehicle
-from observers.bicycle import expm2_zoh, slip_model_terms
-from observers.interval_wang_design import closed_loop, vertex_pairs
-from observers.lmi import DesignStatus, metzler_margin
-from observers.registry import create
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers.bicycle import expm2_zoh, slip_model_terms
+from roadtruth.observers.interval_wang_design import closed_loop, vertex_pairs
+from roadtruth.observers.lmi import DesignStatus, metzler_margin
+from roadtruth.observers.registry import create
 
 SEED_BOX = {"cf_range_Npr": (60_000.0, 90_000.0), "cr_range_Npr": (35_000.0, 65_000.0)}  # (4.45)
 H = 0.01  # the runner's step [s]
@@ -210,7 +210,7 @@ def test_run_is_one_compiled_call_and_equals_stepping_bit_for_bit(name: str, mon
     estimates and bounds are the same bits: through dropouts, an outage past hold_s (fallback to the
     bracket and restart), a speed below the design range, a repeated and an irregular time stamp and
     an initial state."""
-    import observers.interval_wang as module
+    import roadtruth.observers.interval_wang as module
 
     v = load_vehicle("sedan")
     probe = create(name, v)
@@ -262,12 +262,12 @@ def test_bad_options_are_input_errors() -> None:
 
 
 def test_mujoco_double_lane_change_runs_with_finite_coverage() -> None:
-    from harness.estimate import run_observers
-    from harness.scenario import load_scenario
-    from harness.scoring import score
-    from harness.sensors import load_sensor_config
-    from harness.sensors.suite import emulate
-    from harness.simulate import simulate
+    from roadtruth.harness.evaluation.estimate import run_observers
+    from roadtruth.harness.evaluation.scoring import score
+    from roadtruth.harness.sensors import load_sensor_config
+    from roadtruth.harness.sensors.suite import emulate
+    from roadtruth.harness.truth.scenario import load_scenario
+    from roadtruth.harness.truth.simulate import simulate
 
     sedan = load_vehicle("sedan")
     sc = replace(load_scenario("double_lane_change"), duration_s=3.0)

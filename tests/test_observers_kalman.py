@@ -17,12 +17,12 @@ from scipy.linalg import solve_discrete_are
 from scipy.optimize import minimize
 from scipy.stats import chi2
 
-from harness.errors import InputError
-from harness.vehicle import G, load_vehicle
-from observers.bicycle import ay_output
-from observers.kalman import ekf_advance, plausible_box, project_box, ukf_advance
-from observers.registry import create
-from observers.tire_curves import axle_curves, magic_formula, peak_lateral_acceleration
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.truth.vehicle import G, load_vehicle
+from roadtruth.observers.bicycle import ay_output
+from roadtruth.observers.kalman import ekf_advance, plausible_box, project_box, ukf_advance
+from roadtruth.observers.registry import create
+from roadtruth.observers.tire_curves import axle_curves, magic_formula, peak_lateral_acceleration
 
 SEDAN = load_vehicle("sedan")
 
@@ -278,7 +278,7 @@ def test_persistent_ay_mismatch_stays_in_the_plausible_set_and_recovers(name: st
 
 def test_nonlinear_filters_track_the_revs_log(revs_log: Path) -> None:
     """The real Ferrari 250 LM log (1.2 g corners): the guarded filters stay in their set and beat the KF."""
-    from harness.replay import prepare_log
+    from roadtruth.harness.jobs.replay import prepare_log
 
     rl = prepare_log(revs_log, "revs_250lm")
     seg = rl.run_segments[0]
@@ -332,7 +332,7 @@ def test_filter_facing_1_4_g_on_a_0_9_g_tire_model_tracks_and_does_not_pin(name:
     """The car holds 1.42 g while the filter's curves are told 0.9 g: the adapted curves follow the grip
     the car shows, the harness scores ``ok`` (no time on the beta bound) and the sideslip stays close.
     Without the adaptation (``grip_headroom = 0``) the same filter is more than 3 deg off in the corner."""
-    from harness.scoring import score
+    from roadtruth.harness.evaluation.scoring import score
 
     t, X, Y = _corner_beyond_the_model(np.random.default_rng(4))
     assert X[:, 2].max() > 1.4 * G and np.mean(X[:, 2] > 1.4 * G) > 0.05   # the car is past the model
@@ -359,7 +359,7 @@ def test_grip_adaptation_keeps_the_linear_range_and_rejects_a_headroom_below_one
     obs = create("ekf_bicycle", SEDAN)
     small = obs.model_ay(0.05, 0.02, 0.01, 20.0)
     near_peak = obs.model_ay(-1.5, 0.4, 0.08, 20.0)
-    from observers.tire_curves import M_BF, M_BR, M_CF, M_CR, M_DF, M_DR, M_EF, M_ER, set_grip
+    from roadtruth.observers.tire_curves import M_BF, M_BR, M_CF, M_CR, M_DF, M_DR, M_EF, M_ER, set_grip
 
     def stiffness(par: np.ndarray) -> tuple[float, float]:
         return (magic_formula(0.0, par[M_BF], par[M_CF], par[M_EF], par[M_DF])[1],
@@ -381,7 +381,7 @@ def test_run_is_one_compiled_call_and_equals_stepping_bit_for_bit(name: str, mon
     estimates and variances are the same bits, and the adapted grip and covariance end equal, through
     dropouts, a full outage, a repeated and an irregular time stamp, an a_y beyond the tire peak (grip
     adaptation, innovation gate, projection) and an initial state."""
-    import observers.kalman_loop as loop
+    import roadtruth.observers.kalman_loop as loop
 
     t, _, Y = _own_model_run(2000, np.random.default_rng(2))
     gen = np.random.default_rng(9)

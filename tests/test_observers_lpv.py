@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from harness.vehicle import load_vehicle
-from observers.lmi import DesignFailed, DesignStatus
-from observers.registry import create
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers.lmi import DesignFailed, DesignStatus
+from roadtruth.observers.registry import create
 
 pytestmark = pytest.mark.usefixtures("isolated_design_cache")
 
@@ -126,7 +126,7 @@ def _design_model(vehicle, eps, h: float = 1e-3, T: float = 4.0, seed: int = 0):
     ``r`` is the yaw rate that makes the pseudo-output exact, ``delta - (l_f + l_r) r / v = x1 - x2``.
     Returns t, the observer inputs Y (measured v, a exact: the observer applies ``eps``), the true
     alpha, the steering rate, and theta."""
-    from observers.bicycle import slip_model_terms
+    from roadtruth.observers.bicycle import slip_model_terms
     rng = np.random.default_rng(seed)
     A1, _ = slip_model_terms(vehicle)
     ell = vehicle.lf_m + vehicle.lr_m
@@ -185,15 +185,15 @@ def test_l2_gain_below_certified_gamma_in_simulation(vehicle_name: str, name: st
 def test_frozen_worst_case_gain_is_close_to_gamma(name: str) -> None:
     """The H-inf norm of the error system frozen at each of the 16 vertices (frequency sweep of
     sigma_max(I (jw - A_e)^-1 B_e)) is <= gamma, and the worst vertex reaches > 50 % of it."""
-    from observers.bicycle import slip_model_terms
-    from observers.lmi import robust_vertices
-    from observers.lpv_wang_robust_design import error_system
+    from roadtruth.observers.bicycle import slip_model_terms
+    from roadtruth.observers.lmi import robust_vertices
+    from roadtruth.observers.lpv_wang_robust_design import error_system
     v = load_vehicle("wang2014")
     A1, _ = slip_model_terms(v)
     d = create(name, v).design()
     g = _observer_matrices(name, d)
     if "unstructured" not in name:
-        from observers.lpv_wang_robust_design import luenberger_as_unstructured
+        from roadtruth.observers.lpv_wang_robust_design import luenberger_as_unstructured
         g = luenberger_as_unstructured(A1, [d.gain(f"L{i}") for i in range(3)])
     peak = 0.0
     for pt in robust_vertices((15 / 3.6, 150 / 3.6), (-8.0, 8.0), (-0.1, 0.1), (-0.2, 0.2)):
@@ -205,8 +205,8 @@ def test_frozen_worst_case_gain_is_close_to_gamma(name: str) -> None:
 
 
 def _observer_matrices(name: str, d):
-    from observers.bicycle import slip_model_terms
-    from observers.lpv_wang_robust_design import UNSTRUCTURED_KEYS, luenberger_as_unstructured
+    from roadtruth.observers.bicycle import slip_model_terms
+    from roadtruth.observers.lpv_wang_robust_design import UNSTRUCTURED_KEYS, luenberger_as_unstructured
     if "unstructured" in name:
         return {k: d.gain(k) for k in UNSTRUCTURED_KEYS}
     A1, _ = slip_model_terms(load_vehicle("sedan"))
@@ -221,7 +221,7 @@ def test_observer_runs_exactly_its_designed_equations(name: str) -> None:
     from the held delta, r, v; and theta_m from the scheduling error. Agreement to 1e-9 rad."""
     from scipy.linalg import expm
 
-    from observers.lpv_wang_robust_design import observer_matrices
+    from roadtruth.observers.lpv_wang_robust_design import observer_matrices
     vehicle = load_vehicle("sedan")
     eps = (-0.1, 0.15)
     t, Y, x, _, _ = _design_model(vehicle, eps, h=0.01, T=2.0, seed=3)
@@ -254,16 +254,16 @@ def test_h2_impulse_energy_below_certified_bound(vehicle_name: str, name: str) -
     worst vertex the exact squared H2 norm (Lyapunov equation) is within a factor 12 of the bound."""
     from scipy.linalg import solve_continuous_lyapunov
 
-    from observers.bicycle import slip_model_terms
-    from observers.lmi import robust_vertices
-    from observers.lpv_wang_robust_design import error_system
+    from roadtruth.observers.bicycle import slip_model_terms
+    from roadtruth.observers.lmi import robust_vertices
+    from roadtruth.observers.lpv_wang_robust_design import error_system
     vehicle = load_vehicle(vehicle_name)
     A1, _ = slip_model_terms(vehicle)
     d = create(name, vehicle).design()
     assert d.certified, d.reason
     g = _observer_matrices(name, d) if "unstructured" in name else None
     if g is None:
-        from observers.lpv_wang_robust_design import luenberger_as_unstructured
+        from roadtruth.observers.lpv_wang_robust_design import luenberger_as_unstructured
         g = luenberger_as_unstructured(A1, [d.gain(f"L{i}") for i in range(3)])
     verts = robust_vertices((15 / 3.6, 150 / 3.6), (-8.0, 8.0), (-0.1, 0.1), (-0.2, 0.2))
     frozen = []
@@ -324,7 +324,7 @@ def test_robust_family_certification_on_both_vehicles() -> None:
 
 
 def test_scheduling_error_option() -> None:
-    from harness.errors import InputError
+    from roadtruth.harness.errors import InputError
     v = load_vehicle("sedan")
     t, Y, alpha, _ = _maneuver(v, h=0.01, T=2.0)
     base = create("lpv_wang_unstructured_hinf", v).run(t, Y).x
@@ -342,7 +342,7 @@ def test_scheduling_error_option() -> None:
 def test_robust_family_runs_in_the_harness_on_mujoco(tmp_path) -> None:
     import pandas as pd
 
-    from harness.pipeline import run_suite
+    from roadtruth.harness.jobs.pipeline import run_suite
     names = ["lpv_wang_h2", "lpv_wang_unstructured_hinf", "lpv_wang_unstructured_h2_printed"]
     out = run_suite(scenarios=["double_lane_change"], observers=names, render=False, out=tmp_path / "run")
     m = pd.read_csv(out / "metrics.csv")

@@ -17,10 +17,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from harness.vehicle import load_vehicle
-from observers.base import ScalarLoopObserver
-from observers.neural_adaptive_nguyen import NeuralAdaptiveNguyen, init_theta
-from observers.registry import create
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers.base import ScalarLoopObserver
+from roadtruth.observers.neural_adaptive_nguyen import NeuralAdaptiveNguyen, init_theta
+from roadtruth.observers.registry import create
 
 SEDAN = load_vehicle("sedan")
 NAMES = ("nao_nguyen", "nao_nguyen_stepwise", "nao_nguyen_ensemble")
@@ -30,10 +30,10 @@ INPUTS = NeuralAdaptiveNguyen.inputs
 @pytest.fixture(scope="module")
 def fishhook() -> tuple[np.ndarray, np.ndarray]:
     """``(t, Y)`` of a 6 s MuJoCo fishhook through the scenario's automotive sensors (seed 6)."""
-    from harness.scenario import load_scenario
-    from harness.sensors import load_sensor_config
-    from harness.sensors.suite import emulate
-    from harness.simulate import simulate
+    from roadtruth.harness.sensors import load_sensor_config
+    from roadtruth.harness.sensors.suite import emulate
+    from roadtruth.harness.truth.scenario import load_scenario
+    from roadtruth.harness.truth.simulate import simulate
 
     sc = replace(load_scenario("fishhook"), duration_s=6.0)
     truth = simulate(sc)

@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.vehicle import load_vehicle
-from observers.lmi import DesignStatus
-from observers.neural_adaptive_nguyen import N_THETA, init_theta, nao_step
-from observers.neural_adaptive_nguyen_design import lmi_141
-from observers.registry import create
-from observers.uio_nguyen_design import scheduling_points, vehicle_model
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers.lmi import DesignStatus
+from roadtruth.observers.neural_adaptive_nguyen import N_THETA, init_theta, nao_step
+from roadtruth.observers.neural_adaptive_nguyen_design import lmi_141
+from roadtruth.observers.registry import create
+from roadtruth.observers.uio_nguyen_design import scheduling_points, vehicle_model
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_observers_uio_nguyen import _paper_protocol, textbook_sedan  # noqa: E402
@@ -112,7 +112,7 @@ def test_protocol_what_holds_and_what_does_not(protocol_runs) -> None:
 def test_mujoco_suite_rows(tmp_path) -> None:
     import pandas as pd
 
-    from harness.pipeline import run_suite
+    from roadtruth.harness.jobs.pipeline import run_suite
 
     names = ["nao_nguyen", "nao_nguyen_ensemble"]
     out = run_suite(scenarios=["fishhook", "mu_step"], observers=names, render=False, out=tmp_path / "run",
@@ -132,7 +132,7 @@ def _protocol_with_yaw_step(v, step_knm: float, T: float = 40.0, t_step: float =
 
     from scipy.integrate import solve_ivp
 
-    from harness.vehicle import G
+    from roadtruth.harness.truth.vehicle import G
 
     s = 1.2
     m, iz, lf, lr = v.mass_kg * s, v.yaw_inertia_kgm2 * s, v.lf_m, v.lr_m
@@ -222,7 +222,7 @@ def test_protocol_accumulation_does_not_remove_the_early_spikes(protocol_runs) -
 def test_an_infeasible_design_fails_the_run_not_the_construction():
     """Creating the observer (the harness does, to check a user's options) never solves its LMI;
     the disk radius 0.8 is infeasible on the sedan at 10 ms, which only the run reports."""
-    from observers.lmi import DesignFailed
+    from roadtruth.observers.lmi import DesignFailed
 
     obs = create("nao_nguyen", load_vehicle("sedan"), disk_radius=0.8)
     t = np.arange(5) * 0.01

@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from observers import neuro_adaptive as na
-from observers import neuro_adaptive_design as nad
-from observers.lmi import DesignStatus, SolverSettings, solve_lmi
+from roadtruth.observers import neuro_adaptive as na
+from roadtruth.observers import neuro_adaptive_design as nad
+from roadtruth.observers.lmi import DesignStatus, SolverSettings, solve_lmi
 
 DT = 1e-3
 X0 = (0.0, 20.0, 0.0)
@@ -142,7 +142,7 @@ def test_baselines_on_s3a(s3a: dict[str, np.ndarray]) -> None:
 def car_following(tmp_path_factory: pytest.TempPathFactory) -> object:
     import pandas as pd
 
-    from harness.pipeline import run_suite
+    from roadtruth.harness.jobs.pipeline import run_suite
 
     out = run_suite(scenarios=["car_following"], observers=list(NAMES), out=tmp_path_factory.mktemp("na") / "r",
                     render=False, progress=False)

@@ -9,11 +9,11 @@ import pandas as pd
 import pytest
 from scipy.integrate import solve_ivp
 
-from harness.vehicle import load_vehicle
-from observers import nonlinear_wang_design as D
-from observers.bicycle import slip_model_terms
-from observers.lmi import DesignStatus, SolverSettings
-from observers.registry import create
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers import nonlinear_wang_design as D
+from roadtruth.observers.bicycle import slip_model_terms
+from roadtruth.observers.lmi import DesignStatus, SolverSettings
+from roadtruth.observers.registry import create
 
 pytestmark = pytest.mark.usefixtures("isolated_design_cache")
 
@@ -222,7 +222,7 @@ def test_quadratic_in_lambda_multipliers_certify_a_known_negative_form() -> None
 
 
 def test_runs_on_mujoco_fishhook_and_mu_step(tmp_path) -> None:
-    from harness.pipeline import run_suite
+    from roadtruth.harness.jobs.pipeline import run_suite
     names = ["nonlinear_wang", "nonlinear_wang_printed"]
     out = run_suite(scenarios=["fishhook", "mu_step"], observers=names, render=False, out=tmp_path / "run")
     m = pd.read_csv(out / "metrics.csv")

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from harness.errors import InputError
-from harness.vehicle import load_vehicle
-from observers.lmi import DesignStatus
-from observers.pi_observer_design import augmented, l2_blocks
-from observers.registry import create
-from observers.uio_nguyen_design import vehicle_model
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers.lmi import DesignStatus
+from roadtruth.observers.pi_observer_design import augmented, l2_blocks
+from roadtruth.observers.registry import create
+from roadtruth.observers.uio_nguyen_design import vehicle_model
 
 SEDAN = load_vehicle("sedan")
 pytestmark = pytest.mark.usefixtures("isolated_design_cache")
@@ -111,7 +111,7 @@ def test_algebraic_vy_is_exact_on_lane_kinematics_and_causal() -> None:
 def test_mujoco_suite_rows(tmp_path) -> None:
     import pandas as pd
 
-    from harness.pipeline import run_suite
+    from roadtruth.harness.jobs.pipeline import run_suite
 
     names = ["pi_observer_nguyen", "algebraic_vy_yacine"]
     out = run_suite(scenarios=["fishhook", "mu_step"], observers=names, render=False, out=tmp_path / "run",

@@ -8,11 +8,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from harness.errors import InputError
-from harness.vehicle import load_vehicle
-from observers.registry import create
-from observers.switched_interval import SwitchedIntervalIfqir
-from observers.switched_interval_design import C, LateralModel, lateral_model, lmi27, mode_boxes
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers.registry import create
+from roadtruth.observers.switched_interval import SwitchedIntervalIfqir
+from roadtruth.observers.switched_interval_design import C, LateralModel, lateral_model, lmi27, mode_boxes
 
 SEDAN = load_vehicle("sedan")
 NOISE_FREE = {"input_bound_rad": 0.0, "noise_bound_r_radps": 0.0, "noise_bound_psi_rad": 0.0,
@@ -35,7 +35,7 @@ def test_every_mode_is_certified(vehicle: str) -> None:
     obs = create("switched_interval_ifqir", load_vehicle(vehicle))
     d = obs.design()
     assert d.certified, d.reason
-    model = lateral_model(obs)
+    model = lateral_model(obs.design_request())
     gamma, eps = d.margins["gamma"], d.margins["epsilon"]
     for i in range(3):
         g = _mode_mats(obs, i)
@@ -134,7 +134,7 @@ STIFFNESS_CASES = [(1.0, 1.0), (0.9, 0.9), (1.1, 0.9), (0.9, 1.1), (1.1, 1.1), (
 @pytest.mark.parametrize(("kf", "kr"), STIFFNESS_CASES)
 def test_inclusion_on_own_model(kf: float, kr: float) -> None:
     obs = create("switched_interval_ifqir", SEDAN, **NOISE_FREE)
-    model = lateral_model(obs)
+    model = lateral_model(obs.design_request())
     t, Y, X = _truth(model, kf * model.cf0, kr * model.cr0)
     tr = obs.run(t, Y, x0={"vy_mps": 0.1, "psi_lane_rad": 0.0, "y_lane_m": 0.0})
     assert tr.lo is not None and tr.hi is not None
@@ -147,7 +147,7 @@ def test_inclusion_on_own_model(kf: float, kr: float) -> None:
 
 def test_inclusion_with_camera_at_20hz_and_a_gap() -> None:
     obs = create("switched_interval_ifqir", SEDAN, **NOISE_FREE)
-    model = lateral_model(obs)
+    model = lateral_model(obs.design_request())
     t, Y, X = _truth(model, 1.1 * model.cf0, 0.9 * model.cr0, T=12.0, camera_every=5, gap=(5.0, 6.5))
     tr = obs.run(t, Y)
     assert np.all(tr.lo <= X) and np.all(X <= tr.hi)
@@ -163,7 +163,7 @@ def test_width_obeys_the_iss_bound() -> None:
     """V = w^T Q w of the (v_y, r) rows of z satisfies V+ <= e^{-eps h} V + gamma/eps (1 - e^{-eps h}) |Delta|^2,
     hence the asymptotic bound sqrt(gamma/(alpha eps)) Delta_max (29)."""
     obs = create("switched_interval_ifqir", SEDAN, **NOISE_FREE)
-    model = lateral_model(obs)
+    model = lateral_model(obs.design_request())
     d = obs.design()
     gamma, eps, alpha = d.margins["gamma"], d.margins["epsilon"], d.margins["alpha"]
     t, Y, X = _truth(model, 0.9 * model.cf0, 1.1 * model.cr0, T=16.0)
@@ -198,7 +198,7 @@ def test_width_obeys_the_iss_bound() -> None:
 
 def _literal_run(obs: SwitchedIntervalIfqir, vx: float, T: float = 6.0, dt: float = 1e-3) -> tuple[np.ndarray, ...]:
     """Eq. (19) as printed, mode 1, frozen v_x, nominal stiffness, exact y and y', zeta = 0 (Euler, dt)."""
-    model = lateral_model(obs)
+    model = lateral_model(obs.design_request())
     g = _mode_mats(obs, 1)
     P, K, H = g["P"], g["K"], g["H"]
     n_plus, n_minus, n0 = P @ g["Ap"] - K @ C, P @ g["Am"] - K @ C, P @ g["A0"] - K @ C
@@ -247,7 +247,7 @@ def test_literal_eq19_loses_inclusion_where_the_sound_form_keeps_it() -> None:
 def test_nan_inputs_and_determinism() -> None:
     rng = np.random.default_rng(3)
     obs = create("switched_interval_ifqir", SEDAN)
-    model = lateral_model(obs)
+    model = lateral_model(obs.design_request())
     t, Y, _ = _truth(model, model.cf0, model.cr0, T=6.0)
     Y = Y.copy()
     Y[:20] = np.nan
@@ -262,11 +262,11 @@ def test_nan_inputs_and_determinism() -> None:
 
 
 def test_mujoco_curvy_road_runs_with_finite_metrics() -> None:
-    from harness.estimate import run_observers
-    from harness.scenario import load_scenario
-    from harness.sensors import load_sensor_config
-    from harness.sensors.suite import emulate
-    from harness.simulate import simulate
+    from roadtruth.harness.evaluation.estimate import run_observers
+    from roadtruth.harness.sensors import load_sensor_config
+    from roadtruth.harness.sensors.suite import emulate
+    from roadtruth.harness.truth.scenario import load_scenario
+    from roadtruth.harness.truth.simulate import simulate
 
     sc = load_scenario("curvy_road")
     sc = replace(sc, duration_s=3.0)
@@ -288,7 +288,7 @@ def test_dwell_time_is_checked_by_the_mode_logic() -> None:
     obs = create("switched_interval_ifqir", SEDAN, common_Q=False, **NOISE_FREE)
     tau = obs.design().margins["dwell_time_s"]
     assert tau > 0.0
-    model = lateral_model(obs)
+    model = lateral_model(obs.design_request())
     t, Y, _ = _truth(model, model.cf0, model.cr0, T=24.0)
     Y = Y.copy()
     Y[1200:1300, 2] = np.where(np.arange(100) % 60 < 30, 23.0, 16.5)   # speed chatter across two bands

@@ -9,12 +9,18 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from harness.errors import InputError
-from harness.vehicle import load_vehicle
-from observers.registry import create
-from observers.takagi_sugeno import expm_taylor, rule_weights, ts_step
-from observers.takagi_sugeno_design import C_OUT, RULES, SEED_STIFFNESS_NPR, secant_slope, sector_bounds
-from observers.tire_curves import axle_curves
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers.registry import create
+from roadtruth.observers.takagi_sugeno import expm_taylor, rule_weights, ts_step
+from roadtruth.observers.takagi_sugeno_design import (
+    C_OUT,
+    RULES,
+    SEED_STIFFNESS_NPR,
+    secant_slope,
+    sector_bounds,
+)
+from roadtruth.observers.tire_curves import axle_curves
 
 SEED_CAR = load_vehicle("yacine2016")
 SEDAN = load_vehicle("sedan")
@@ -269,11 +275,11 @@ def test_conformance_with_camera_inputs(monkeypatch: pytest.MonkeyPatch) -> None
 # ---- MuJoCo ------------------------------------------------------------------------------------------
 
 def test_short_mujoco_curvy_road_run_gives_finite_metrics() -> None:
-    from harness.estimate import run_observers
-    from harness.scenario import load_scenario
-    from harness.scoring import score
-    from harness.sensors import emulate, load_sensor_config
-    from harness.simulate import simulate
+    from roadtruth.harness.evaluation.estimate import run_observers
+    from roadtruth.harness.evaluation.scoring import score
+    from roadtruth.harness.sensors import emulate, load_sensor_config
+    from roadtruth.harness.truth.scenario import load_scenario
+    from roadtruth.harness.truth.simulate import simulate
 
     sc = dataclasses.replace(load_scenario("curvy_road"), duration_s=4.0)
     truth = simulate(sc)

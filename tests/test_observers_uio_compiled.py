@@ -1,7 +1,7 @@
 """The generalized UIO's run() is one compiled loop and equals stepping step() bit for bit.
 
 ``GeneralizedUIO.step()`` and ``run()`` both call the numba kernel
-:func:`observers.uio_generalized_loop.generalized_run` (one sample, or the whole log in one call) on
+:func:`roadtruth.observers.uio_generalized_loop.generalized_run` (one sample, or the whole log in one call) on
 the same carried state, so their estimates must be equal to the last bit: on a MuJoCo run with
 emulated automotive sensors and a sensor outage, and on synthetic inputs with dropouts, an outage
 longer than ``hold_s`` (prediction branch), heading wraps of the integrated gyro, a repeated and an
@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-import observers.uio_generalized as uio_module
-from harness.vehicle import load_vehicle
-from observers.registry import create
-from observers.uio_generalized import GeneralizedUIO
-from observers.uio_generalized_design import basis
-from observers.uio_generalized_loop import affine_step_pade, balanced_constants
+import roadtruth.observers.uio_generalized as uio_module
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers.registry import create
+from roadtruth.observers.uio_generalized import GeneralizedUIO
+from roadtruth.observers.uio_generalized_design import basis
+from roadtruth.observers.uio_generalized_loop import affine_step_pade, balanced_constants
 
 SEDAN = load_vehicle("sedan")
 NAMES = ("uio_generalized", "uio_generalized_yaw_moment")
@@ -64,10 +64,10 @@ def _synthetic(n: int = 2500, h: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
 def _mujoco_inputs() -> tuple[np.ndarray, np.ndarray]:
     """Emulated sensors on a MuJoCo double lane change, with a 0.3 s gap of every channel (held, then
     predicted past ``hold_s``) and random 10 % dropouts."""
-    from harness.scenario import load_scenario
-    from harness.sensors import load_sensor_config
-    from harness.sensors.suite import emulate
-    from harness.simulate import simulate
+    from roadtruth.harness.sensors import load_sensor_config
+    from roadtruth.harness.sensors.suite import emulate
+    from roadtruth.harness.truth.scenario import load_scenario
+    from roadtruth.harness.truth.simulate import simulate
 
     sc = dataclasses.replace(load_scenario("double_lane_change"), duration_s=6.0)
     truth = simulate(sc)

@@ -9,14 +9,19 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from harness.errors import InputError
-from harness.vehicle import load_vehicle
-from observers.levant_differentiator import levant_gains
-from observers.lmi import DesignStatus, SolverSettings
-from observers.registry import create
-from observers.uio_generalized_design import design, generalized_model, rank_condition, unknown_input_matrix
-from observers.uio_generalized_loop import _derivative, affine_step_pade
-from observers.uio_nguyen_design import D_REG, vehicle_model
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.truth.vehicle import load_vehicle
+from roadtruth.observers.levant_differentiator import levant_gains
+from roadtruth.observers.lmi import DesignStatus, SolverSettings
+from roadtruth.observers.registry import create
+from roadtruth.observers.uio_generalized_design import (
+    design,
+    generalized_model,
+    rank_condition,
+    unknown_input_matrix,
+)
+from roadtruth.observers.uio_generalized_loop import _derivative, affine_step_pade
+from roadtruth.observers.uio_nguyen_design import D_REG, vehicle_model
 
 SEDAN = load_vehicle("sedan")
 pytestmark = pytest.mark.usefixtures("isolated_design_cache")
@@ -141,7 +146,7 @@ def test_jacobian_matches_the_model_derivative() -> None:
     t, X, Xd, U, Ud, mz = _yaw_moment_truth(accel=1.0)
     model = vehicle_model(SEDAN)
     gm = generalized_model(model, unknown_input_matrix(model, "yaw_moment", SEDAN.yaw_inertia_kgm2), np.eye(3), 0.0)
-    from observers.uio_generalized_design import basis
+    from roadtruth.observers.uio_generalized_design import basis
     i = 500
     C = model.C
     # chi_2' = y'' = C (A' x + A x' + B_u u' + B_mu mu'), mu' by finite difference of the known M_z
@@ -197,7 +202,7 @@ def test_kernel_and_differentiators() -> None:
 def test_mujoco_suite_rows(tmp_path) -> None:
     import pandas as pd
 
-    from harness.pipeline import run_suite
+    from roadtruth.harness.jobs.pipeline import run_suite
 
     names = ["uio_generalized", "uio_generalized_yaw_moment"]
     out = run_suite(scenarios=["fishhook", "mu_step"], observers=names, render=False, out=tmp_path / "run",

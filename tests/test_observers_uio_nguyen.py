@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from harness.errors import InputError
-from harness.vehicle import G, VehicleParams, load_vehicle
-from observers.lmi import DesignStatus, SolverSettings
-from observers.registry import create
-from observers.uio_nguyen import affine_rk4
-from observers.uio_nguyen_design import (
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.truth.vehicle import G, VehicleParams, load_vehicle
+from roadtruth.observers.lmi import DesignStatus, SolverSettings
+from roadtruth.observers.registry import create
+from roadtruth.observers.uio_nguyen import affine_rk4
+from roadtruth.observers.uio_nguyen_design import (
     C_OUT,
     D_REG,
     E_REG,
@@ -275,11 +275,11 @@ def test_outages_heading_wrap_and_options() -> None:
 
 
 def test_mujoco_double_lane_change_runs_with_finite_metrics() -> None:
-    from harness.estimate import run_observers
-    from harness.scenario import load_scenario
-    from harness.sensors import load_sensor_config
-    from harness.sensors.suite import emulate
-    from harness.simulate import simulate
+    from roadtruth.harness.evaluation.estimate import run_observers
+    from roadtruth.harness.sensors import load_sensor_config
+    from roadtruth.harness.sensors.suite import emulate
+    from roadtruth.harness.truth.scenario import load_scenario
+    from roadtruth.harness.truth.simulate import simulate
 
     sc = dataclasses.replace(load_scenario("double_lane_change"), duration_s=4.0)
     truth = simulate(sc)

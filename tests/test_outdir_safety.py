@@ -18,11 +18,17 @@ import pandas as pd
 import pytest
 from synthetic_run import make_run_folder
 
-from harness.check import DEFAULT_THRESHOLDS
-from harness.cli import main
-from harness.errors import InputError
-from harness.outdir import MARKER, OWNER, atomic_output_dir, owner_alive, remove_stale_partials
-from harness.scenario import scenarios_dir
+from roadtruth.harness.cli import main
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.files.outdir import (
+    MARKER,
+    OWNER,
+    atomic_output_dir,
+    owner_alive,
+    remove_stale_partials,
+)
+from roadtruth.harness.jobs.check import DEFAULT_THRESHOLDS
+from roadtruth.harness.truth.scenario import scenarios_dir
 
 pytestmark = pytest.mark.usefixtures("isolated_design_cache")
 
@@ -224,7 +230,7 @@ def test_check_junit_unwritable_exits_2_before_running_anything(junit: str, tmp_
 
 def _spawn(args: list[str], cwd: Path) -> subprocess.Popen[str]:
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
-    return subprocess.Popen([sys.executable, "-m", "harness.cli", *args], cwd=cwd, env=env, text=True,
+    return subprocess.Popen([sys.executable, "-m", "roadtruth.harness.cli", *args], cwd=cwd, env=env, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
 

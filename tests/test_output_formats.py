@@ -16,9 +16,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness import table_io
-from harness.report.rundata import FLOAT_FORMAT, RunData
-from harness.table_io import (
+from roadtruth.harness.files import table_io
+from roadtruth.harness.files.table_io import (
     WideEstimates,
     estimates_long,
     estimates_wide,
@@ -26,6 +25,7 @@ from harness.table_io import (
     read_table,
     write_csv_table,
 )
+from roadtruth.harness.report.rundata import FLOAT_FORMAT, RunData
 
 OBSERVERS = ["kf_bicycle", "open_loop_bicycle"]
 
@@ -95,7 +95,7 @@ def test_wide_estimates_are_one_row_per_step_and_read_back_long() -> None:
 
 
 def run(out: Path, fmt: str, seed: int = 5) -> Path:
-    from harness.pipeline import run_suite
+    from roadtruth.harness.jobs.pipeline import run_suite
 
     return run_suite(scenarios=["step_steer"], observers=OBSERVERS, seed=seed, out=out, render=False,
                      progress=False, table_format=fmt)
@@ -140,8 +140,8 @@ def test_parquet_holds_the_numbers_the_csv_run_rounds(runs: dict[str, Path]) -> 
 
 
 def test_report_compare_and_check_read_parquet_folders(runs: dict[str, Path], tmp_path: Path) -> None:
-    from harness.check import load_baseline
-    from harness.compare import compare
+    from roadtruth.harness.jobs.check import load_baseline
+    from roadtruth.harness.jobs.compare import compare
 
     data = RunData.load(runs["parquet"])
     est = data.scenario("step_steer").estimates
@@ -156,7 +156,7 @@ def test_report_compare_and_check_read_parquet_folders(runs: dict[str, Path], tm
 
 def test_replay_writes_wide_parquet_and_one_progress_line_per_segment_and_observer(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from harness.replay import replay
+    from roadtruth.harness.jobs.replay import replay
 
     t = np.arange(0.0, 12.0, 0.01)
     vx = np.where((t >= 5.0) & (t < 7.0), 0.0, 20.0)  # a standstill: two run segments

@@ -1,4 +1,4 @@
-"""Physics of the truth held to analytic statics (harness.suspension_statics) and to the bicycle model:
+"""Physics of the truth held to analytic statics (roadtruth.harness.truth.suspension_statics) and to the bicycle model:
 roll gradient, quasi-static wheel lift, no rollover below the friction limit, banked curve at its
 neutral speed, brake to a stop, linear range, camber thrust. Predicted and measured values are in
 every assert message."""
@@ -11,17 +11,17 @@ import math
 import numpy as np
 import pytest
 
-from harness.errors import ScenarioError
-from harness.scenario import available_scenarios, load_scenario, parse_scenario
-from harness.simulate import simulate
-from harness.suspension_statics import (
+from roadtruth.harness.errors import ScenarioError
+from roadtruth.harness.truth.scenario import available_scenarios, load_scenario, parse_scenario
+from roadtruth.harness.truth.simulate import simulate
+from roadtruth.harness.truth.suspension_statics import (
     banked_neutral_speed,
     linear_understeer_gradient,
     load_transfer,
     roll_statics,
     wheel_lift,
 )
-from harness.vehicle import Aero, G, load_vehicle
+from roadtruth.harness.truth.vehicle import Aero, G, load_vehicle
 
 
 def _scenario(duration: float, steer: dict, speed: dict | None = None, v0: float = 20.0, mu: float = 1.0):

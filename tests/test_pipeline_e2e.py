@@ -11,9 +11,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.errors import InputError
-from harness.scoring import COLUMNS
-from harness.table_io import read_estimates
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.evaluation.scoring import COLUMNS
+from roadtruth.harness.files.table_io import read_estimates
 
 pytestmark = pytest.mark.slow
 
@@ -23,7 +23,7 @@ CONTRACT_METRICS = ["scenario", "observer", "state", "rmse", "mae", "max_abs", "
 
 
 def pick_observers() -> list[str]:
-    from observers.registry import available_observers, observer_info
+    from roadtruth.observers.registry import available_observers, observer_info
 
     info = {i["name"]: i for i in observer_info()}
     names = available_observers()
@@ -36,7 +36,7 @@ def pick_observers() -> list[str]:
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, list[str]]:
-    from harness.pipeline import run_suite
+    from roadtruth.harness.jobs.pipeline import run_suite
 
     observers = pick_observers()
     root = tmp_path_factory.mktemp("e2e")
@@ -122,7 +122,7 @@ def test_same_seed_same_bytes_whatever_the_jobs(runs: tuple[Path, Path, list[str
 
 
 def test_compare_of_identical_runs_is_all_same(runs: tuple[Path, Path, list[str]]):
-    from harness.compare import compare_runs
+    from roadtruth.harness.jobs.compare import compare_runs
 
     a, b, _ = runs
     table = compare_runs(a, b, None)
@@ -131,7 +131,7 @@ def test_compare_of_identical_runs_is_all_same(runs: tuple[Path, Path, list[str]
 
 
 def test_report_rebuild_from_saved_files(runs: tuple[Path, Path, list[str]]):
-    from harness.report import build_report
+    from roadtruth.harness.report import build_report
 
     _, b, _ = runs
     before = (b / "index.html").read_text(encoding="utf-8")
@@ -140,7 +140,7 @@ def test_report_rebuild_from_saved_files(runs: tuple[Path, Path, list[str]]):
 
 
 def test_simulate_to_dir_writes_truth_and_measurements(tmp_path: Path):
-    from harness.pipeline import simulate_to_dir
+    from roadtruth.harness.jobs.pipeline import simulate_to_dir
 
     out = simulate_to_dir("step_steer", tmp_path / "sim", seed=5, log_rate_hz=1000.0)
     truth = pd.read_csv(out / "truth.csv")
@@ -151,7 +151,7 @@ def test_simulate_to_dir_writes_truth_and_measurements(tmp_path: Path):
 
 
 def test_bad_input_raises_before_any_output(tmp_path: Path):
-    from harness.pipeline import run_suite
+    from roadtruth.harness.jobs.pipeline import run_suite
 
     with pytest.raises(InputError):
         run_suite(scenarios=["no_such_scenario"], out=tmp_path / "x", progress=False)
@@ -171,7 +171,7 @@ def test_without_gl_the_report_says_so_and_is_otherwise_complete(tmp_path: Path)
 
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     env["MUJOCO_GL"] = "glfw"
-    code = ("from pathlib import Path; from harness.pipeline import run_suite; "
+    code = ("from pathlib import Path; from roadtruth.harness.jobs.pipeline import run_suite; "
             f"run_suite(scenarios=['step_steer'], observers={pick_observers()[:1]!r}, "
             f"out=Path({str(tmp_path / 'nogl')!r}), progress=False)")
     res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
@@ -187,10 +187,10 @@ def test_a_diverged_or_crashed_scenario_is_reported_and_the_suite_goes_on(tmp_pa
                                                                           monkeypatch: pytest.MonkeyPatch):
     import dataclasses
 
-    import harness.simulate
-    from harness.pipeline import run_suite
+    import roadtruth.harness.truth.simulate
+    from roadtruth.harness.jobs.pipeline import run_suite
 
-    real = harness.simulate.simulate
+    real = roadtruth.harness.truth.simulate.simulate
 
     def flaky(scenario, vehicle=None, seed=None, **kw):
         if scenario.name == "step_steer":
@@ -200,7 +200,7 @@ def test_a_diverged_or_crashed_scenario_is_reported_and_the_suite_goes_on(tmp_pa
         return dataclasses.replace(truth, frame=truth.frame.iloc[:n], qpos=truth.qpos[:n],
                                    status="diverged: test at t=3 s")
 
-    monkeypatch.setattr(harness.simulate, "simulate", flaky)
+    monkeypatch.setattr(roadtruth.harness.truth.simulate, "simulate", flaky)
     observers = pick_observers()[:2]
     out = run_suite(scenarios=["step_steer", "brake_in_turn"], observers=observers, out=tmp_path / "r",
                     render=False, progress=False)

@@ -13,11 +13,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.errors import InputError
-from harness.vehicle import G, VehicleParams, load_vehicle
-from observers.reference_sideslip import reference_rows
-from observers.registry import create
-from observers.tire_curves import inverse_magic_formula, magic_formula, peak_slip
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.truth.vehicle import G, VehicleParams, load_vehicle
+from roadtruth.observers.reference_sideslip import reference_rows
+from roadtruth.observers.registry import create
+from roadtruth.observers.tire_curves import inverse_magic_formula, magic_formula, peak_slip
 
 SEDAN = load_vehicle("sedan")
 
@@ -144,7 +144,7 @@ def test_bad_options_are_input_errors(opts: dict[str, Any], field: str) -> None:
 
 
 def test_runs_in_the_harness_on_mujoco(tmp_path: Path) -> None:
-    from harness.pipeline import run_suite
+    from roadtruth.harness.jobs.pipeline import run_suite
 
     out = run_suite(scenarios=["double_lane_change"], observers=["reference_beta", "kf_bicycle"], render=False,
                     out=tmp_path / "run")
@@ -157,7 +157,7 @@ def test_runs_in_the_harness_on_mujoco(tmp_path: Path) -> None:
 def test_revs_log_beats_the_kalman_filter_and_zero_sideslip(revs_log: Path) -> None:
     """The whole recorded log, every run segment: at least 40 % below the linear KF, below beta = 0,
     with the shipped vehicle and with deliberately wrong ones (grip 0.9, the sedan)."""
-    from harness.replay import prepare_log
+    from roadtruth.harness.jobs.replay import prepare_log
 
     rl = prepare_log(revs_log, "revs_250lm")
     ferrari = load_vehicle("ferrari_250lm")

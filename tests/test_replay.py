@@ -10,10 +10,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.cli import main
-from harness.errors import LogError
-from harness.replay import prepare_log, replay
-from harness.table_io import read_estimates
+from roadtruth.harness.cli import main
+from roadtruth.harness.errors import LogError
+from roadtruth.harness.files.table_io import read_estimates
+from roadtruth.harness.jobs.replay import prepare_log, replay
 
 REVS_NAME = "revs_250lm_2014-02-22"
 DEG = math.pi / 180.0

@@ -17,18 +17,24 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness import table_io
-from harness.cli import main as cli_main
-from harness.errors import InputError
-from harness.replay import check_jobs, replay
-from harness.report import build_report, rundata
-from harness.table_io import WideEstimates, estimates_long, estimates_wide, read_table, write_table
+from roadtruth.harness.cli import main as cli_main
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.files import table_io
+from roadtruth.harness.files.table_io import (
+    WideEstimates,
+    estimates_long,
+    estimates_wide,
+    read_table,
+    write_table,
+)
+from roadtruth.harness.jobs.replay import check_jobs, replay
+from roadtruth.harness.report import build_report, rundata
 
 OBSERVERS = ["kf_bicycle", "open_loop_bicycle"]
 
 
 def observer_frame(name: str, t: np.ndarray, states: list[str], kind: str, seed: int) -> pd.DataFrame:
-    """A long frame as ``harness.estimate.run_observers`` returns it: one block of rows per state;
+    """A long frame as ``roadtruth.harness.evaluation.estimate.run_observers`` returns it: one block of rows per state;
     ``kind`` "var" (a filter), "bounds" (an interval observer) or "none"."""
     rng = np.random.default_rng(seed)
     n = len(t)

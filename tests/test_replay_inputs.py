@@ -12,12 +12,12 @@ import pytest
 import scipy.io
 import yaml
 
-from harness.cli import main
-from harness.errors import LogError, VehicleError
-from harness.replay import prepare_log, replay
-from harness.replay_channels import causal_derivative
-from harness.replay_log import load_column_map
-from harness.vehicle import load_vehicle
+from roadtruth.harness.cli import main
+from roadtruth.harness.errors import LogError, VehicleError
+from roadtruth.harness.jobs.replay import prepare_log, replay
+from roadtruth.harness.jobs.replay_channels import causal_derivative
+from roadtruth.harness.jobs.replay_log import load_column_map
+from roadtruth.harness.truth.vehicle import load_vehicle
 
 L, K = 2.62, 0.0015  # wheelbase of the replay vehicle below [m], understeer gradient [rad/(m/s^2)]
 RATIO, RADIUS = 15.2, 0.31

@@ -1,4 +1,4 @@
-"""Reading, mapping, validating and segmenting recorded logs (harness/replay_log.py, replay_segments.py)."""
+"""Reading, mapping, validating and segmenting recorded logs (harness/jobs/replay_log.py, replay_segments.py)."""
 
 from __future__ import annotations
 
@@ -12,15 +12,15 @@ import pytest
 import scipy.io
 import yaml
 
-from harness.errors import InputError, LogError
-from harness.replay_log import (
+from roadtruth.harness.errors import InputError, LogError
+from roadtruth.harness.jobs.replay_log import (
     G0,
     apply_map,
     identity_map,
     load_column_map,
     read_log,
 )
-from harness.replay_segments import RUN, SKIPPED, segment_log, segment_measurements
+from roadtruth.harness.jobs.replay_segments import RUN, SKIPPED, segment_log, segment_measurements
 
 
 def steady_turn_log(t: np.ndarray, vx: float | np.ndarray = 20.0) -> pd.DataFrame:

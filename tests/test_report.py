@@ -12,10 +12,10 @@ import pandas as pd
 import pytest
 from synthetic_run import make_run_folder
 
-from harness.errors import InputError
-from harness.report import ReportBuilder, build_report
-from harness.report.builder import default_sections
-from harness.report.rundata import RunData
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.report import ReportBuilder, build_report
+from roadtruth.harness.report.builder import default_sections
+from roadtruth.harness.report.rundata import RunData
 
 
 class Collect(HTMLParser):
@@ -165,7 +165,7 @@ def test_a_failed_run_is_counted_and_shown_as_failed(run_dir: Path):
 
 
 def test_ranks_ties_share_the_best_rank_and_empty_cells_get_none():
-    from harness.report.ranking import leaders, rank_state
+    from roadtruth.harness.report.ranking import leaders, rank_state
 
     rows = [("s1", "a", "ok", 1.0), ("s1", "b", "ok", 1.0), ("s1", "c", "ok", 2.0), ("s1", "d", "skipped: missing range_m", None),
             ("s2", "a", "ok", 3.0), ("s2", "b", "diverged", 0.1), ("s2", "c", "ok", 1.0), ("s2", "d", "ok", None),
@@ -216,8 +216,8 @@ def test_beta_axis_stays_near_the_truth_when_an_interval_observer_starts_wide(tm
 
 
 def test_every_observer_has_its_own_style_the_same_on_every_page():
-    from harness.report.figures import observer_style, observer_styles
-    from harness.report.styles import registry_names
+    from roadtruth.harness.report.figures import observer_style, observer_styles
+    from roadtruth.harness.report.styles import registry_names
 
     names = [*registry_names(), "plugin_obs", "my_kf", "team_ukf", "a", "b", "c"]
     assert len(names) >= 20
@@ -232,7 +232,7 @@ def test_every_observer_has_its_own_style_the_same_on_every_page():
 
 
 def test_decimation_keeps_the_min_and_max_of_each_bucket_and_the_gaps():
-    from harness.report.figures import decimate
+    from roadtruth.harness.report.figures import decimate
 
     rng = np.random.default_rng(0)
     n, n_out = 55_000, 400
@@ -259,7 +259,7 @@ def test_decimation_keeps_the_min_and_max_of_each_bucket_and_the_gaps():
 def test_each_state_is_ranked_once_per_metric_per_page(run_dir: Path, monkeypatch: pytest.MonkeyPatch):
     """The summary's cards and the leaderboard rank the same rows: one ranking per (state, metric)
     for a whole page, not one per section (the page used to rank every state twice)."""
-    import harness.report.sections.leaderboard as leaderboard
+    import roadtruth.harness.report.sections.leaderboard as leaderboard
 
     calls: list[tuple[str, str]] = []
     real = leaderboard.rank_state
@@ -279,7 +279,7 @@ def _wide_run(tmp_path: Path, fmt: str) -> Path:
     """The synthetic run with wide estimates in ``fmt`` and 20 more observers' columns of states no
     figure draws (as in a long log's replay, where they are most of the table), one observer silent
     on a stretch and one that gives no β at all."""
-    from harness.table_io import estimates_wide, write_table
+    from roadtruth.harness.files.table_io import estimates_wide, write_table
 
     run = make_run_folder(tmp_path / fmt)
     for name in ("step_steer", "ice_patch"):
@@ -304,9 +304,9 @@ def test_figures_read_one_state_of_a_wide_table_and_draw_what_the_long_frame_dra
     """A long log's wide estimates table (every observer's every state) is never read whole: each
     figure reads ``t_s`` and its own state's columns only, and draws exactly what the long frame of
     the whole table draws (gaps and an observer without the state included)."""
-    import harness.report.rundata as rundata
-    from harness.report.figures import observer_styles, state_figure
-    from harness.table_io import estimates_long, read_table, table_path
+    import roadtruth.harness.report.rundata as rundata
+    from roadtruth.harness.files.table_io import estimates_long, read_table, table_path
+    from roadtruth.harness.report.figures import observer_styles, state_figure
 
     run_dir = _wide_run(tmp_path, fmt)
     reads: list[list[str] | None] = []

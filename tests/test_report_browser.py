@@ -52,8 +52,8 @@ def test_console_check_catches_a_broken_page(tmp_path: Path):
 
 @pytest.fixture(scope="module")
 def real_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from harness.pipeline import run_suite
-    from observers.registry import available_observers
+    from roadtruth.harness.jobs.pipeline import run_suite
+    from roadtruth.observers.registry import available_observers
 
     # two sideslip observers that run on the scenario's sensors, so the β leaderboard has cells
     names = [n for n in ("kf_bicycle", "open_loop_bicycle") if n in available_observers()]
@@ -119,7 +119,7 @@ def _frame_page(tmp_path: Path, page: Path, width: int, height: int) -> Path:
 def skips_only_report(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from report_folders import skips_only_run_folder
 
-    from harness.report import build_report
+    from roadtruth.harness.report import build_report
 
     return build_report(skips_only_run_folder(tmp_path_factory.mktemp("skips") / "run"))
 

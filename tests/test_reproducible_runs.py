@@ -15,10 +15,10 @@ from pathlib import Path
 
 import pytest
 
-import harness
-from harness.pipeline import run_suite
-from harness.report import build_report
-from harness.report.rundata import git_revision
+import roadtruth.harness as harness
+from roadtruth.harness.jobs.pipeline import run_suite
+from roadtruth.harness.report import build_report
+from roadtruth.harness.report.rundata import git_revision
 
 #: The only cells that measure the machine rather than the result.
 TIMING_FILE, TIMING_COLUMN = "timings.json", "us_per_step"

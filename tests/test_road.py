@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.special import fresnel
 
-from harness.road import Road, Segment, build_road, road_project, road_project_many
+from roadtruth.harness.truth.road import Road, Segment, build_road, road_project, road_project_many
 
 
 def test_circle_closes_on_itself() -> None:

@@ -13,14 +13,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-from harness.cli import main
-from harness.errors import InputError, ScenarioError
-from harness.road import Road, Segment, build_road, road_surface
-from harness.road_mesh import road_surface_mesh
-from harness.road_profile import RoadProfile
-from harness.scenario import load_scenario, parse_scenario, scenarios_dir
-from harness.strict_yaml import load_mapping
-from harness.vehicle import G
+from roadtruth.harness.cli import main
+from roadtruth.harness.errors import InputError, ScenarioError
+from roadtruth.harness.files.strict_yaml import load_mapping
+from roadtruth.harness.truth.road import Road, Segment, build_road, road_surface
+from roadtruth.harness.truth.road_mesh import road_surface_mesh
+from roadtruth.harness.truth.road_profile import RoadProfile
+from roadtruth.harness.truth.scenario import load_scenario, parse_scenario, scenarios_dir
+from roadtruth.harness.truth.vehicle import G
 
 
 def _surface_compiled(road: Road, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -352,8 +352,8 @@ def test_lane_dashes_lie_on_the_3d_road_surface(name: str) -> None:
     # a bank), and its top face must be parallel to the surface (z axis = the surface normal).
     import mujoco
 
-    from harness.car_model import build_mjcf
-    from harness.vehicle import load_vehicle
+    from roadtruth.harness.truth.car_model import build_mjcf
+    from roadtruth.harness.truth.vehicle import load_vehicle
 
     sc = load_scenario(name)
     road = sc.road

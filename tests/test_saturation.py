@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness import scoring
+from roadtruth.harness.evaluation import scoring
 
 BOUND = 0.5
 
@@ -140,8 +140,8 @@ def test_bound_fraction_is_time_weighted():
 def test_the_kalman_filters_declare_the_bound_they_project_onto(name):
     """Drive the real filter into its sideslip projection: it lands exactly on its declared bound, and
     scoring (with the bound taken from the observer's class) says ``saturated``, not ``ok``."""
-    from harness.vehicle import load_vehicle
-    from observers.registry import create, observer_class
+    from roadtruth.harness.truth.vehicle import load_vehicle
+    from roadtruth.observers.registry import create, observer_class
 
     lo, hi = observer_class(name).state_bounds["beta_rad"]
     assert (lo, hi) == (-0.5, 0.5)
@@ -162,8 +162,8 @@ def test_the_kalman_filters_declare_the_bound_they_project_onto(name):
 
 
 def test_an_instance_with_another_beta_max_declares_it():
-    from harness.vehicle import load_vehicle
-    from observers.registry import create
+    from roadtruth.harness.truth.vehicle import load_vehicle
+    from roadtruth.observers.registry import create
 
     obs = create("ekf_bicycle", load_vehicle("sedan"), beta_max_rad=0.3)
     assert obs.state_bounds == {"beta_rad": (-0.3, 0.3)}
@@ -171,9 +171,9 @@ def test_an_instance_with_another_beta_max_declares_it():
 
 def test_every_declared_bound_names_an_estimated_state_inside_the_absurd_limits():
     """A bound on a state the observer does not estimate would never be checked; one wider than the
-    absurd limit of ``harness.estimate`` would leave a band where neither check sees a runaway."""
-    from harness.estimate import ABSURD_LIMITS
-    from observers.registry import available_observers, observer_class
+    absurd limit of ``roadtruth.harness.evaluation.estimate`` would leave a band where neither check sees a runaway."""
+    from roadtruth.harness.evaluation.estimate import ABSURD_LIMITS
+    from roadtruth.observers.registry import available_observers, observer_class
 
     declared = {n: observer_class(n).state_bounds for n in available_observers() if observer_class(n).state_bounds}
     assert {"ekf_bicycle", "ukf_bicycle"} <= set(declared)

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 from scaffold_env import fresh_venv, run_shell, venv_env
 
-from harness import cli
-from harness.scaffold import project_names
-from harness.vehicle import load_vehicle
+from roadtruth.harness import cli
+from roadtruth.harness.jobs.scaffold import project_names
+from roadtruth.harness.truth.vehicle import load_vehicle
 
 
 def test_init_writes_the_project(tmp_path: Path) -> None:
@@ -64,7 +64,7 @@ def test_init_never_replaces_a_users_files(tmp_path: Path, kind: str, capsys: py
 
 def _observer_class():
     spec = importlib.util.spec_from_file_location("scaffold_observer",
-                                                  str(files("harness") / "scaffold_template" / "observer.py"))
+                                                  str(files("roadtruth.harness") / "scaffold_template" / "observer.py"))
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module.ComplementarySideslip

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 import yaml
 
-from harness.driver import DriverSpec
-from harness.errors import ScenarioError
-from harness.friction_map import FrictionMap
-from harness.road import Road
-from harness.scenario import (
+from roadtruth.harness.errors import ScenarioError
+from roadtruth.harness.truth.driver import DriverSpec
+from roadtruth.harness.truth.friction_map import FrictionMap
+from roadtruth.harness.truth.road import Road
+from roadtruth.harness.truth.scenario import (
     Outage,
     Scenario,
     available_scenarios,
@@ -24,7 +24,7 @@ from harness.scenario import (
     scenarios_dir,
     suite,
 )
-from harness.vehicle import load_vehicle
+from roadtruth.harness.truth.vehicle import load_vehicle
 
 REQUIRED = {"step_steer", "sine_sweep", "double_lane_change", "constant_radius", "slalom", "fishhook",
             "sine_with_dwell", "brake_in_turn", "split_mu_braking", "mu_step", "curvy_road", "car_following",
@@ -99,8 +99,8 @@ def test_outages_and_gaps(library: dict[str, Scenario]) -> None:
 
 
 def test_outage_sensor_names_match_the_sensor_catalog() -> None:
-    from harness.scenario import SENSOR_NAMES
-    from harness.sensors.catalog import SENSORS
+    from roadtruth.harness.sensors.catalog import SENSORS
+    from roadtruth.harness.truth.scenario import SENSOR_NAMES
 
     assert set(SENSOR_NAMES) == set(SENSORS) | {"all"}
 

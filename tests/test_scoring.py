@@ -11,8 +11,8 @@ import pandas as pd
 import pytest
 from scipy.stats import chi2
 
-from harness import scoring
-from harness.vehicle import G
+from roadtruth.harness.evaluation import scoring
+from roadtruth.harness.truth.vehicle import G
 
 
 @dataclass(frozen=True)

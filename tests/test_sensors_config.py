@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from harness.errors import InputError, SensorConfigError
-from harness.sensors import (
+from roadtruth.harness.errors import InputError, SensorConfigError
+from roadtruth.harness.sensors import (
     SENSORS,
     available_presets,
     emulate,
@@ -15,8 +15,8 @@ from harness.sensors import (
     parse_faults,
     sensor_config_from_cli,
 )
-from harness.sensors.synthetic import steady_motion_truth
-from harness.vehicle import load_vehicle
+from roadtruth.harness.sensors.synthetic import steady_motion_truth
+from roadtruth.harness.truth.vehicle import load_vehicle
 
 VEHICLE = load_vehicle("sedan")
 TRUTH = steady_motion_truth(3.0, vx_mps=15.0, yaw_rate_radps=0.1, roll_rad=0.01, range_m=40.0)

@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from harness.sensors import emulate, load_sensor_config
-from harness.sensors.synthetic import steady_motion_truth
-from harness.vehicle import G, load_vehicle
+from roadtruth.harness.sensors import emulate, load_sensor_config
+from roadtruth.harness.sensors.synthetic import steady_motion_truth
+from roadtruth.harness.truth.vehicle import G, load_vehicle
 
 VEHICLE = load_vehicle("sedan")
 

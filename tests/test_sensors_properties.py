@@ -8,10 +8,10 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from harness.sensors import SENSORS, FaultSpec, emulate, load_sensor_config, valid_column
-from harness.sensors.faults import FAULT_KINDS
-from harness.sensors.synthetic import steady_motion_truth
-from harness.vehicle import load_vehicle
+from roadtruth.harness.sensors import SENSORS, FaultSpec, emulate, load_sensor_config, valid_column
+from roadtruth.harness.sensors.faults import FAULT_KINDS
+from roadtruth.harness.sensors.synthetic import steady_motion_truth
+from roadtruth.harness.truth.vehicle import load_vehicle
 
 VEHICLE = load_vehicle("sedan")
 DURATION = 3.0

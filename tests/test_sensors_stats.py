@@ -9,11 +9,11 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from harness.sensors import emulate, load_sensor_config
-from harness.sensors.faults import gilbert_elliott_states
-from harness.sensors.noise import ChannelErrors, apply_channel_errors
-from harness.sensors.synthetic import steady_motion_truth
-from harness.vehicle import load_vehicle
+from roadtruth.harness.sensors import emulate, load_sensor_config
+from roadtruth.harness.sensors.faults import gilbert_elliott_states
+from roadtruth.harness.sensors.noise import ChannelErrors, apply_channel_errors
+from roadtruth.harness.sensors.synthetic import steady_motion_truth
+from roadtruth.harness.truth.vehicle import load_vehicle
 
 VEHICLE = load_vehicle("sedan")
 ALPHA = 1e-6  # false-alarm probability of each band: these tests must not flake

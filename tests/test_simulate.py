@@ -9,13 +9,13 @@ import math
 import numpy as np
 import pytest
 
-from harness.errors import InputError, ScenarioError
-from harness.friction_map import FrictionMap, Patch
-from harness.scenario import load_scenario, parse_scenario
-from harness.signals import CANONICAL
-from harness.simulate import simulate
-from harness.suspension_statics import linear_understeer_gradient
-from harness.vehicle import Aero, G, load_vehicle
+from roadtruth.harness.errors import InputError, ScenarioError
+from roadtruth.harness.signals import CANONICAL
+from roadtruth.harness.truth.friction_map import FrictionMap, Patch
+from roadtruth.harness.truth.scenario import load_scenario, parse_scenario
+from roadtruth.harness.truth.simulate import simulate
+from roadtruth.harness.truth.suspension_statics import linear_understeer_gradient
+from roadtruth.harness.truth.vehicle import Aero, G, load_vehicle
 
 
 def _scenario(duration: float, steer: dict, **extra):
@@ -258,7 +258,7 @@ def test_stepped_model_has_no_scenario_visuals_and_the_render_model_poses_from_t
     for name in ("chassis", "wheel_fl", "wheel_rr", "knuckle_fr"):
         assert np.array_equal(dr.xpos[render.body(name).id], ds.xpos[stepped.body(name).id])
     assert abs(ds.xpos[stepped.body("chassis").id, 0] - truth.frame.x_m.iloc[-1]) < 1e-9
-    from harness.render import RenderSource
+    from roadtruth.harness.report.render import RenderSource
 
     assert RenderSource.from_truth(truth).model_xml == truth.render_xml  # what a run's renders draw
 

@@ -13,8 +13,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.errors import InputError, ScenarioError, SensorConfigError
-from harness.stress import (
+from roadtruth.harness.errors import InputError, ScenarioError, SensorConfigError
+from roadtruth.harness.jobs.stress import (
     NO_FAULTS,
     StressSpecError,
     build_cases,
@@ -85,7 +85,7 @@ def test_seeds_derive_from_the_base_seed_and_extend() -> None:
 def test_peak_lateral_acceleration_is_bounded_by_road_friction(serial: Path) -> None:
     """|a_y| <= mu * g * grip (tire peak force <= grip * mu * Fz), with 15 % for load transfer
     dynamics and the unfiltered 1 kHz signal."""
-    from harness.scenario import load_scenario
+    from roadtruth.harness.truth.scenario import load_scenario
 
     grip = load_scenario(SCENARIO).vehicle_params().tires.grip
     cases = _rows(serial).drop_duplicates("case")
@@ -117,7 +117,7 @@ def test_real_dask_local_cluster_gives_identical_results(serial: Path, tmp_path:
 
 def test_a_crashing_case_becomes_error_rows_and_the_sweep_goes_on(tmp_path: Path,
                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
-    import harness.sensors as sensors
+    import roadtruth.harness.sensors as sensors
 
     real = sensors.emulate
 
@@ -172,7 +172,7 @@ def test_breaking_point_at_the_known_mu_and_fault_level_with_the_threshold_used(
 
     from stress_synthetic import stress_rows
 
-    from harness.stress_report import DEFAULT_RMSE_LIMITS, breaking_points, summarize
+    from roadtruth.harness.report.stress_report import DEFAULT_RMSE_LIMITS, breaking_points, summarize
 
     summary = summarize(stress_rows())
     bp = breaking_points(summary).set_index(["observer", "axis"])
@@ -197,7 +197,7 @@ def test_breaking_point_at_the_known_mu_and_fault_level_with_the_threshold_used(
 
 
 def test_thresholds_come_from_the_shipped_ci_rules_when_one_matches() -> None:
-    from harness.stress_report import rmse_threshold
+    from roadtruth.harness.report.stress_report import rmse_threshold
 
     limit, source = rmse_threshold("step_steer", "kf_bicycle", "beta_rad")
     assert limit == 0.0016 and source.startswith("ci.yaml rules[")
@@ -210,7 +210,7 @@ def test_stress_page_shows_curves_in_degrees_breaking_points_and_spin_outs(tmp_p
 
     from stress_synthetic import RUN, stress_rows
 
-    from harness.stress_report import summarize, write_index
+    from roadtruth.harness.report.stress_report import summarize, write_index
 
     page = write_index(tmp_path, summarize(stress_rows()), RUN).read_text()
     specs = {m.group(1): json.loads(m.group(2)) for m in
@@ -234,8 +234,7 @@ def test_a_worker_reuses_prepared_scenarios_within_a_sweep_and_results_do_not_de
     """Cases of one sweep share one prepared scenario per (scenario, friction) in a process; a later
     case sees exactly what a fresh load gives (nothing is changed by use), whatever ran before it,
     and a new sweep loads afresh (a file edited in between is read again)."""
-    from harness import stress
-
+    from roadtruth.harness.jobs import stress
     seeds = monte_carlo_seeds(BASE_SEED, 2)
     fwd = stress.run_cases(build_cases([SCENARIO], FRICTIONS, [NO_FAULTS], seeds, OBSERVERS, sweep="a"))
     assert set(stress._PREPARED) == {("a", SCENARIO, f) for f in FRICTIONS}
@@ -253,7 +252,7 @@ def test_a_worker_reuses_prepared_scenarios_within_a_sweep_and_results_do_not_de
 
 
 def test_dask_batches_cover_every_case_once_in_order() -> None:
-    from harness.stress import dask_batches
+    from roadtruth.harness.jobs.stress import dask_batches
 
     cases = build_cases(["x"], ["1.0", "0.3"], [NO_FAULTS], list(range(48)), ["o"])
     for workers in (1, 2, 3, 8):

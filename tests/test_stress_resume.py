@@ -11,9 +11,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.disk_cache import CACHE_ENV
-from harness.stress import run_stress
-from harness.stress_cache import CACHE_KIND
+from roadtruth.harness.files.disk_cache import CACHE_ENV
+from roadtruth.harness.jobs.stress import run_stress
+from roadtruth.harness.jobs.stress_cache import CACHE_KIND
 
 OBSERVERS = ["kf_bicycle"]  # no LMI design: the cost of a case is the simulation
 FRICTIONS = ["1.0", "0.5"]
@@ -122,7 +122,7 @@ def test_a_tampered_case_entry_is_recomputed(tiny: Path, tmp_path: Path) -> None
 
 
 def test_failed_cases_are_not_cached(tiny: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import harness.sensors as sensors
+    import roadtruth.harness.sensors as sensors
 
     real = sensors.emulate
 

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from harness.suspension_statics import (
+from roadtruth.harness.truth.suspension_statics import (
     banked_neutral_speed,
     load_transfer,
     roll_statics,
@@ -18,7 +18,7 @@ from harness.suspension_statics import (
     static_stability_factor,
     wheel_lift,
 )
-from harness.vehicle import G, VehicleParams, load_vehicle
+from roadtruth.harness.truth.vehicle import G, VehicleParams, load_vehicle
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from harness.tire import (
+from roadtruth.harness.truth.tire import (
     combined_slip_forces,
     peak_slip,
     radial_load_kernel,
@@ -17,7 +17,7 @@ from harness.tire import (
     tire_forces_kernel,
     tire_forces_reference,
 )
-from harness.vehicle import load_vehicle
+from roadtruth.harness.truth.vehicle import load_vehicle
 
 
 @pytest.fixture(scope="module")

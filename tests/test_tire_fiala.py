@@ -7,10 +7,15 @@ import math
 import numpy as np
 import pytest
 
-from harness.tire_fiala import fiala_coefficients, fiala_forces
-from harness.tire_file import read_tire_file, shipped_tire_path
-from harness.tire_fit import ALPHA_FIT_MAX_RAD, KAPPA_FIT_MAX, fit_axle_magic_formula, pure_slip_curves
-from harness.tire_mf61 import cornering_stiffness, longitudinal_stiffness, mf61_forces
+from roadtruth.harness.truth.tire_fiala import fiala_coefficients, fiala_forces
+from roadtruth.harness.truth.tire_file import read_tire_file, shipped_tire_path
+from roadtruth.harness.truth.tire_fit import (
+    ALPHA_FIT_MAX_RAD,
+    KAPPA_FIT_MAX,
+    fit_axle_magic_formula,
+    pure_slip_curves,
+)
+from roadtruth.harness.truth.tire_mf61 import cornering_stiffness, longitudinal_stiffness, mf61_forces
 
 C_ALPHA, C_KAPPA, A, C_GAMMA = 80_000.0, 120_000.0, 0.07, 4_000.0
 FZ = 4000.0

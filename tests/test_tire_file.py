@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from test_tire_mf61 import reference
 
-from harness.errors import VehicleError
-from harness.tire_file import (
+from roadtruth.harness.errors import VehicleError
+from roadtruth.harness.truth.tire_file import (
     MF61_INDEX,
     N_MF61_COEF,
     SCALING_NAMES,
@@ -17,7 +17,7 @@ from harness.tire_file import (
     shipped_tire_path,
     tire_file_from_text,
 )
-from harness.tire_mf61 import mf61_forces
+from roadtruth.harness.truth.tire_mf61 import mf61_forces
 
 TIR = shipped_tire_path("mf61_205_60R15")
 
@@ -134,6 +134,6 @@ def test_missing_fittyp_and_unreadable_file(tmp_path):
 
 
 def test_index_constants_match_the_kernel_layout():
-    import harness.tire_mf61 as k
+    import roadtruth.harness.truth.tire_mf61 as k
     for name, index in MF61_INDEX.items():
         assert getattr(k, "R0" if name == "UNLOADED_RADIUS" else name) == index

@@ -12,8 +12,8 @@ import math
 import numpy as np
 import pytest
 
-from harness.tire_file import NONZERO_DEFAULTS, read_tire_file, shipped_tire_path
-from harness.tire_mf61 import (
+from roadtruth.harness.truth.tire_file import NONZERO_DEFAULTS, read_tire_file, shipped_tire_path
+from roadtruth.harness.truth.tire_mf61 import (
     camber_stiffness,
     cornering_stiffness,
     longitudinal_stiffness,

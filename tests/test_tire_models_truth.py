@@ -12,13 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.errors import VehicleError
-from harness.scenario import load_scenario, parse_scenario
-from harness.simulate import simulate
-from harness.suspension_statics import linear_understeer_gradient
-from harness.tire_file import read_tire_file, shipped_tire_path
-from harness.tire_mf61 import cornering_stiffness
-from harness.vehicle import Aero, load_vehicle
+from roadtruth.harness.errors import VehicleError
+from roadtruth.harness.truth.scenario import load_scenario, parse_scenario
+from roadtruth.harness.truth.simulate import simulate
+from roadtruth.harness.truth.suspension_statics import linear_understeer_gradient
+from roadtruth.harness.truth.tire_file import read_tire_file, shipped_tire_path
+from roadtruth.harness.truth.tire_mf61 import cornering_stiffness
+from roadtruth.harness.truth.vehicle import Aero, load_vehicle
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "vehicles"
 

@@ -10,10 +10,17 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness import scoring, truth_events
-from harness.road import Road
-from harness.table_io import read_estimates
-from harness.truth_events import TruthEvent, detect_events, detect_wheel_lift, scoring_end_s, truth_status
+from roadtruth.harness.evaluation import scoring
+from roadtruth.harness.files.table_io import read_estimates
+from roadtruth.harness.truth import truth_events
+from roadtruth.harness.truth.road import Road
+from roadtruth.harness.truth.truth_events import (
+    TruthEvent,
+    detect_events,
+    detect_wheel_lift,
+    scoring_end_s,
+    truth_status,
+)
 
 DT = 0.001
 
@@ -113,8 +120,8 @@ sensors: {preset: automotive}
 
 
 def test_a_straight_steady_run_has_no_events_and_is_scored_to_the_end(tmp_path: Path):
-    from harness.scenario import load_scenario
-    from harness.simulate import simulate
+    from roadtruth.harness.truth.scenario import load_scenario
+    from roadtruth.harness.truth.simulate import simulate
 
     p = tmp_path / "straight.yaml"
     p.write_text(STRAIGHT)
@@ -130,8 +137,8 @@ def test_a_straight_steady_run_has_no_events_and_is_scored_to_the_end(tmp_path: 
 def test_a_spin_out_is_an_event_and_ends_scoring(tmp_path: Path):
     """Sine with dwell on a 0.5 friction road: the sedan spins. The run says so, and the observer is
     scored only up to the spin (its RMSE is the one of that window, not of the car going backwards)."""
-    from harness.pipeline import ScenarioTask, compute_scenario, prepare_scenario
-    from harness.simulate import simulate
+    from roadtruth.harness.jobs.pipeline import ScenarioTask, compute_scenario, prepare_scenario
+    from roadtruth.harness.truth.simulate import simulate
 
     task = ScenarioTask(name="sine_with_dwell", run_dir=tmp_path, observers=("kf_bicycle",), seed=None,
                         vehicle=None, friction="0.5", sensors=None, faults=None, log_rate_hz=100.0,

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from harness.cli import main
+from roadtruth.harness.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -72,17 +72,17 @@ def test_listing_commands_have_no_internal_labels(command: list[str], capsys: py
 
 
 def test_every_observer_cites_a_paper_or_model_in_words(capsys: pytest.CaptureFixture[str]) -> None:
-    from observers.registry import available_observers, observer_class
+    from roadtruth.observers.registry import available_observers, observer_class
 
     assert main(["observers", "--json"]) == 0
     listed = {o["name"]: o for o in json.loads(capsys.readouterr().out)}
     assert set(listed) == set(available_observers())
-    assert len([n for n in listed if observer_class(n).__module__.startswith("observers.")]) >= 18
+    assert len([n for n in listed if observer_class(n).__module__.startswith("roadtruth.observers.")]) >= 18
     for name, info in listed.items():
         cls = observer_class(name)
         assert info["citation"] == cls.citation
         assert offences(cls.citation) == [], name
-        if not cls.__module__.startswith("observers."):
+        if not cls.__module__.startswith("roadtruth.observers."):
             continue  # a plug-in registered by another test: its citation is its author's business
         assert len(cls.citation) > 20, name  # a real reference, not a label
         # a year, or the undated thesis draft the citation names as such

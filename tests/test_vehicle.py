@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from harness.errors import InputError, VehicleError
-from harness.vehicle import G, available_vehicles, load_vehicle, vehicles_dir
+from roadtruth.harness.errors import InputError, VehicleError
+from roadtruth.harness.truth.vehicle import G, available_vehicles, load_vehicle, vehicles_dir
 
 
 def test_required_sets_are_shipped() -> None:

@@ -3,7 +3,7 @@
 ``build_report(run_dir)`` rebuilds ``run_dir/index.html`` from the saved files alone.
 
 The builder (Jinja, plotly, the sections) is imported on first use of one of its names, not when a
-submodule such as ``harness.report.rundata`` is imported: ``roadtruth simulate`` writes run files
+submodule such as ``roadtruth.harness.report.rundata`` is imported: ``roadtruth simulate`` writes run files
 through ``rundata`` and never builds a page.
 """
 
@@ -12,14 +12,14 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from harness.report.builder import ReportBuilder, build_report, default_sections, render_report
+    from roadtruth.harness.report.builder import ReportBuilder, build_report, default_sections, render_report
 
 __all__ = ["ReportBuilder", "build_report", "default_sections", "render_report"]
 
 
 def __getattr__(name: str) -> Any:
     if name in __all__:
-        from harness.report import builder
+        from roadtruth.harness.report import builder
 
         return getattr(builder, name)
-    raise AttributeError(f"module 'harness.report' has no attribute {name!r}")
+    raise AttributeError(f"module 'roadtruth.harness.report' has no attribute {name!r}")

@@ -14,16 +14,22 @@ from pathlib import Path
 import jinja2
 from markupsafe import Markup
 
-from harness import __version__
-from harness.report.figures import LineStyle, observer_style, observer_styles, swatch_svg
-from harness.report.rundata import RunData
-from harness.report.sections.base import Section
-from harness.report.sections.leaderboard import LeaderboardSection
-from harness.report.sections.observers import ObserversSection
-from harness.report.sections.provenance import ProvenanceSection
-from harness.report.sections.scenarios import ScenariosSection
-from harness.report.sections.summary import SummarySection
-from harness.report.verdicts import DESIGN_ORDER, NOT_APPLICABLE, design_class, design_label, status_kind
+from roadtruth.harness import __version__
+from roadtruth.harness.report.figures import LineStyle, observer_style, observer_styles, swatch_svg
+from roadtruth.harness.report.rundata import RunData
+from roadtruth.harness.report.sections.base import Section
+from roadtruth.harness.report.sections.leaderboard import LeaderboardSection
+from roadtruth.harness.report.sections.observers import ObserversSection
+from roadtruth.harness.report.sections.provenance import ProvenanceSection
+from roadtruth.harness.report.sections.scenarios import ScenariosSection
+from roadtruth.harness.report.sections.summary import SummarySection
+from roadtruth.harness.report.verdicts import (
+    DESIGN_ORDER,
+    NOT_APPLICABLE,
+    design_class,
+    design_label,
+    status_kind,
+)
 
 
 @dataclass(frozen=True)
@@ -52,7 +58,7 @@ def design_statuses(run: RunData) -> dict[str, str]:
     A skipped run never designed anything: it says nothing about certification (an observer skipped
     everywhere is "not_evaluated", not "rejected").
     """
-    from harness.report.sections.leaderboard import certification_of
+    from roadtruth.harness.report.sections.leaderboard import certification_of
 
     order = list(DESIGN_ORDER)
     seen: dict[str, list[str]] = {}
@@ -84,7 +90,7 @@ def default_sections() -> list[Section]:
 @cache
 def _environment() -> jinja2.Environment:
     env = jinja2.Environment(
-        loader=jinja2.PackageLoader("harness.report", "templates"),
+        loader=jinja2.PackageLoader("roadtruth.harness.report", "templates"),
         autoescape=jinja2.select_autoescape(["html"], default=True),
         undefined=jinja2.StrictUndefined,
         trim_blocks=True,
@@ -109,7 +115,7 @@ def _format_number(v: object, digits: int = 3) -> str:
 
 
 def _asset(name: str) -> str:
-    return files("harness.report").joinpath("assets", name).read_text(encoding="utf-8")
+    return files("roadtruth.harness.report").joinpath("assets", name).read_text(encoding="utf-8")
 
 
 @cache

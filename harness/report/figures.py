@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from harness.report.rundata import ObserverSeries, observer_series
-from harness.report.styles import (  # noqa: F401 - re-exported: other pages import styles from here
+from roadtruth.harness.report.rundata import ObserverSeries, observer_series
+from roadtruth.harness.report.styles import (  # noqa: F401 - re-exported: other pages import styles from here
     PALETTE,
     TRUTH_COLOUR,
     LineStyle,

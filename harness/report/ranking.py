@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import pandas as pd
 
-from harness.report.verdicts import OK, status_kind
+from roadtruth.harness.report.verdicts import OK, status_kind
 
 #: How each switchable metric is ordered: "low" = smaller |v| is better, "high" = larger is better,
 #: "one" = closer to 1 is better (NEES of a consistent filter).

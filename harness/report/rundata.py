@@ -2,7 +2,7 @@
 
 The report never re-simulates and never recomputes metrics: it reads ``run.json``, ``metrics.csv``
 and, per scenario, ``truth.csv``, ``estimates.csv``, ``events.json`` and ``scenario.json``. Each table
-may be CSV or Parquet (``--format``; ``harness/table_io.py``), and ``estimates`` wide (one row per time
+may be CSV or Parquet (``--format``; ``harness/files/table_io.py``), and ``estimates`` wide (one row per time
 step, ``<observer>.<state>`` columns) or long (runs written before the wide form): readers get the long
 frame either way.
 """
@@ -20,9 +20,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from harness.errors import InputError
-from harness.strict_yaml import short_repr
-from harness.table_io import (
+from roadtruth.harness.errors import InputError
+from roadtruth.harness.files.strict_yaml import short_repr
+from roadtruth.harness.files.table_io import (
     BOUND_SUFFIXES,
     estimate_columns,
     estimates_long,
@@ -80,7 +80,7 @@ def _read_json(path: Path, kind: type, what: str) -> Any:
 
 def read_metrics(run_dir: Path) -> pd.DataFrame:
     """``metrics.csv`` of a run folder, validated (raises RunFolderError naming the file)."""
-    from harness.metrics_file import read_metrics_file
+    from roadtruth.harness.evaluation.metrics_file import read_metrics_file
 
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
@@ -433,7 +433,7 @@ class RunData:
 
     @cached_property
     def states(self) -> list[str]:
-        from harness.signals import ESTIMABLE
+        from roadtruth.harness.signals import ESTIMABLE
 
         present = [s for s in self.metrics["state"].astype(str).unique() if s]
         order = {s: i for i, s in enumerate(ESTIMABLE)}
@@ -509,7 +509,7 @@ def new_scenario_folder(run_dir: Path, name: str) -> tuple[str, Path]:
 
 
 def write_csv(frame: pd.DataFrame, path: Path) -> None:
-    """A frame as CSV with the fixed float format; NaN is an empty cell (``harness.table_io``: the
+    """A frame as CSV with the fixed float format; NaN is an empty cell (``roadtruth.harness.files.table_io``: the
     same bytes as ``to_csv(float_format=FLOAT_FORMAT)``, written faster and in blocks)."""
     write_csv_table(frame, path)
 
@@ -594,7 +594,7 @@ def git_revision() -> str | None:
     import subprocess
     import tomllib
 
-    package_dir = Path(__file__).resolve().parents[1]
+    package_dir = Path(__file__).resolve().parents[2]
     env = {k: v for k, v in os.environ.items() if not k.startswith("GIT_")}
 
     def git(*args: str) -> str | None:

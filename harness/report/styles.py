@@ -7,7 +7,7 @@ plug-in that is not installed, a renamed observer in an old run folder) take a s
 registered ones chosen by a stable hash of the name (CRC-32, not Python's salted ``hash``);
 ``observer_styles`` resolves collisions among them deterministically.
 
-Usage from any page: ``from harness.report.figures import observer_style``;
+Usage from any page: ``from roadtruth.harness.report.figures import observer_style``;
 ``observer_style("ekf_bicycle").plotly_line(width=1.4)``.
 """
 
@@ -50,7 +50,7 @@ def _slot_style(slot: int) -> LineStyle:
 def registry_names() -> tuple[str, ...]:
     """Sorted names of every registered observer (empty if the registry cannot be loaded)."""
     try:
-        from observers.registry import available_observers
+        from roadtruth.observers.registry import available_observers
 
         return tuple(available_observers())
     except Exception:  # noqa: BLE001 - a broken plug-in must not stop a report from being drawn

@@ -8,11 +8,11 @@ Public API (see docs/SENSORS.md and ARCHITECTURE "Measurements"):
 * :func:`parse_faults` — the ``--faults`` syntax.
 
 Sensors never see MuJoCo: they read the truth DataFrame only. The table of sensors is
-:data:`harness.sensors.catalog.SENSORS` (one module per sensor).
+:data:`roadtruth.harness.sensors.catalog.SENSORS` (one module per sensor).
 """
 
-from harness.sensors.catalog import SENSORS, output_columns, valid_column
-from harness.sensors.config import (
+from roadtruth.harness.sensors.catalog import SENSORS, output_columns, valid_column
+from roadtruth.harness.sensors.config import (
     DEFAULT_PRESET,
     SensorConfig,
     SensorSuiteConfig,
@@ -20,9 +20,9 @@ from harness.sensors.config import (
     load_sensor_config,
     sensor_config_from_cli,
 )
-from harness.sensors.faults import FAULT_KINDS, FaultSpec, parse_faults
-from harness.sensors.noise import ChannelErrors
-from harness.sensors.suite import Measurements, emulate
+from roadtruth.harness.sensors.faults import FAULT_KINDS, FaultSpec, parse_faults
+from roadtruth.harness.sensors.noise import ChannelErrors
+from roadtruth.harness.sensors.suite import Measurements, emulate
 
 __all__ = [
     "DEFAULT_PRESET", "FAULT_KINDS", "SENSORS", "ChannelErrors", "FaultSpec", "Measurements", "SensorConfig",

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from types import ModuleType
 
-from harness.sensors import gnss, imu, lane_camera, optical_speed, radar, steering, wheel_speed
+from roadtruth.harness.sensors import gnss, imu, lane_camera, optical_speed, radar, steering, wheel_speed
 
 #: In output order (the column order of the measurements frame).
 SENSORS: dict[str, ModuleType] = {m.NAME: m for m in (imu, wheel_speed, steering, gnss, lane_camera, radar,

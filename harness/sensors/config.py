@@ -16,7 +16,7 @@ A preset file (``harness/sensors/presets/<name>.yaml``, or any YAML path) is::
         faults: [{fault: dropout, p: 0.001}]
 
 Each error block (``accel``, ``gyro``, ``position`` …) takes the keys of
-:class:`harness.sensors.noise.ChannelErrors`. Overrides are a mapping of the same shape as
+:class:`roadtruth.harness.sensors.noise.ChannelErrors`. Overrides are a mapping of the same shape as
 ``sensors:`` merged into it (mappings merge, other values replace). Any unknown sensor, key or fault,
 a negative figure, or rates that do not divide the fastest one raise :class:`SensorConfigError`.
 """
@@ -31,11 +31,11 @@ from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
-from harness.errors import SensorConfigError
-from harness.sensors.catalog import SENSORS
-from harness.sensors.faults import FAULT_KINDS, FaultSpec, parse_fault_list, parse_faults
-from harness.sensors.noise import ChannelErrors, parse_channel_errors
-from harness.strict_yaml import Fields, load_mapping
+from roadtruth.harness.errors import SensorConfigError
+from roadtruth.harness.files.strict_yaml import Fields, load_mapping
+from roadtruth.harness.sensors.catalog import SENSORS
+from roadtruth.harness.sensors.faults import FAULT_KINDS, FaultSpec, parse_fault_list, parse_faults
+from roadtruth.harness.sensors.noise import ChannelErrors, parse_channel_errors
 
 DEFAULT_PRESET = "automotive"
 
@@ -84,7 +84,7 @@ class SensorSuiteConfig:
 
 
 def presets_dir() -> Path:
-    return Path(str(files("harness") / "sensors" / "presets"))
+    return Path(str(files("roadtruth.harness") / "sensors" / "presets"))
 
 
 def available_presets() -> list[str]:

@@ -28,8 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from harness.errors import SensorConfigError
-from harness.strict_yaml import Fields, load_mapping
+from roadtruth.harness.errors import SensorConfigError
+from roadtruth.harness.files.strict_yaml import Fields, load_mapping
 
 REQUIRED = object()
 
@@ -156,7 +156,7 @@ def parse_faults(spec: str | Sequence[Any] | None, source: str = "--faults") -> 
 
     A YAML file holds ``faults:`` — a list of mappings ``{sensor: gnss, fault: dropout, p: 0.2}``
     (``channel:`` optional). Sensor and channel names are checked against the suite later, by
-    :func:`harness.sensors.config.load_sensor_config`.
+    :func:`roadtruth.harness.sensors.config.load_sensor_config`.
     """
     if spec is None:
         return ()

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from harness.sensors.sampling import SampleContext, body_to_heading, parse_position
-from harness.strict_yaml import Fields
+from roadtruth.harness.files.strict_yaml import Fields
+from roadtruth.harness.sensors.sampling import SampleContext, body_to_heading, parse_position
 
 NAME = "gnss"
 COLUMNS: tuple[str, ...] = ("gnss_x_m", "gnss_y_m", "gnss_speed_mps", "gnss_course_rad")

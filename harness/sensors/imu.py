@@ -21,9 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from harness.sensors.sampling import ANTI_ALIAS_MODES, SampleContext, parse_position
-from harness.strict_yaml import Fields
-from harness.vehicle import G
+from roadtruth.harness.files.strict_yaml import Fields
+from roadtruth.harness.sensors.sampling import ANTI_ALIAS_MODES, SampleContext, parse_position
+from roadtruth.harness.truth.vehicle import G
 
 NAME = "imu"
 COLUMNS: tuple[str, ...] = ("ax_mps2", "ay_mps2", "az_mps2", "roll_rate_radps", "pitch_rate_radps",

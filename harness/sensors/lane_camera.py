@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from harness.sensors.sampling import SampleContext
-from harness.strict_yaml import Fields
+from roadtruth.harness.files.strict_yaml import Fields
+from roadtruth.harness.sensors.sampling import SampleContext
 
 NAME = "camera"
 COLUMNS: tuple[str, ...] = ("y_lane_m", "psi_lane_rad", "rho_1pm")

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from harness.strict_yaml import Fields
+from roadtruth.harness.files.strict_yaml import Fields
 
 #: Keys of a channel-error block in a preset.
 ERROR_KEYS: tuple[str, ...] = ("noise_std", "noise_density", "bias", "bias_std", "bias_walk", "gm_std",

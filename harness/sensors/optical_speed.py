@@ -16,8 +16,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from harness.sensors.sampling import ANTI_ALIAS_MODES, SampleContext, heading_to_body, parse_position
-from harness.strict_yaml import Fields
+from roadtruth.harness.files.strict_yaml import Fields
+from roadtruth.harness.sensors.sampling import (
+    ANTI_ALIAS_MODES,
+    SampleContext,
+    heading_to_body,
+    parse_position,
+)
 
 NAME = "ogs"
 COLUMNS: tuple[str, ...] = ("ogs_vx_mps", "ogs_vy_mps")

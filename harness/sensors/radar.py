@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from harness.sensors.sampling import SampleContext
-from harness.strict_yaml import Fields
+from roadtruth.harness.files.strict_yaml import Fields
+from roadtruth.harness.sensors.sampling import SampleContext
 
 NAME = "radar"
 COLUMNS: tuple[str, ...] = ("range_m", "range_rate_mps")

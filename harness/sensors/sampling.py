@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from harness.errors import SensorConfigError
-from harness.strict_yaml import Fields
-from harness.vehicle import VehicleParams
+from roadtruth.harness.errors import SensorConfigError
+from roadtruth.harness.files.strict_yaml import Fields
+from roadtruth.harness.truth.vehicle import VehicleParams
 
 ANTI_ALIAS_MODES: tuple[str, ...] = ("mean", "sample")
 

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from harness.sensors.sampling import SampleContext
-from harness.strict_yaml import Fields
+from roadtruth.harness.files.strict_yaml import Fields
+from roadtruth.harness.sensors.sampling import SampleContext
 
 NAME = "steering"
 COLUMNS: tuple[str, ...] = ("handwheel_rad", "delta_rad")

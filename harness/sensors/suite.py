@@ -4,7 +4,7 @@ For each enabled sensor (rate ``f``, latency ``L``):
 
 1. sample instants ``t_k = t_0 + k / f`` (truth rows; ``f`` divides the truth rate);
 2. ideal values from the truth (the sensor module's physics), then the channel error model
-   (:mod:`harness.sensors.noise`), then derived outputs;
+   (:mod:`roadtruth.harness.sensors.noise`), then derived outputs;
 3. value faults, then availability: a sample is lost if any of its values is NaN (the sensor had
    nothing to report), or an availability fault or a scheduled outage removes it;
 4. arrival at ``t_k + L + extra delay``, placed on the first time-base row at or after it
@@ -26,13 +26,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from harness.errors import SensorConfigError
-from harness.sensors.catalog import SENSORS, valid_column
-from harness.sensors.config import SensorConfig, SensorSuiteConfig, rate_divides
-from harness.sensors.faults import FAULT_KINDS, apply_value_fault, availability_loss, extra_delay
-from harness.sensors.noise import apply_channel_errors, stream
-from harness.sensors.sampling import SampleContext
-from harness.vehicle import VehicleParams
+from roadtruth.harness.errors import SensorConfigError
+from roadtruth.harness.sensors.catalog import SENSORS, valid_column
+from roadtruth.harness.sensors.config import SensorConfig, SensorSuiteConfig, rate_divides
+from roadtruth.harness.sensors.faults import FAULT_KINDS, apply_value_fault, availability_loss, extra_delay
+from roadtruth.harness.sensors.noise import apply_channel_errors, stream
+from roadtruth.harness.sensors.sampling import SampleContext
+from roadtruth.harness.truth.vehicle import VehicleParams
 
 _ROW_EPS = 1e-6  # fraction of a base period forgiven when placing an arrival on the grid
 

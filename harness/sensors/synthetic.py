@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from harness.sensors.sampling import heading_to_body
+from roadtruth.harness.sensors.sampling import heading_to_body
 
 
 def steady_motion_truth(duration_s: float = 10.0, dt_s: float = 0.001, *, vx_mps: float = 20.0,

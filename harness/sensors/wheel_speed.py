@@ -22,10 +22,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from harness.sensors.noise import stream
-from harness.sensors.sampling import SampleContext
-from harness.signals import WHEELS
-from harness.strict_yaml import Fields
+from roadtruth.harness.files.strict_yaml import Fields
+from roadtruth.harness.sensors.noise import stream
+from roadtruth.harness.sensors.sampling import SampleContext
+from roadtruth.harness.signals import WHEELS
 
 NAME = "wheel_speed"
 OMEGA = tuple(f"omega_{w}_radps" for w in WHEELS)

@@ -1,1 +1,1 @@
-"""Report sections, one per file; ``harness.report.builder.default_sections`` orders them."""
+"""Report sections, one per file; ``roadtruth.harness.report.builder.default_sections`` orders them."""

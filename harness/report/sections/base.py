@@ -5,7 +5,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from typing import Any
 
-from harness.report.rundata import RunData
+from roadtruth.harness.report.rundata import RunData
 
 
 class Section(ABC):

@@ -1,7 +1,7 @@
 """Leaderboard: one table per state, observers × scenarios, coloured and sortable in the page.
 
 Cells say one of three things: a number (scored), a grey "n/a — needs radar" (not applicable), or
-a red status (failed: the estimate is not usable). Ranks come from ``harness.report.ranking``,
+a red status (failed: the estimate is not usable). Ranks come from ``roadtruth.harness.report.ranking``,
 computed here for every switchable metric; the page only shows them."""
 
 from __future__ import annotations
@@ -11,11 +11,11 @@ from typing import Any
 
 import pandas as pd
 
-from harness.report.figures import display_unit, state_label
-from harness.report.ranking import MeanRank, rank_state
-from harness.report.rundata import RunData
-from harness.report.sections.base import Section
-from harness.report.verdicts import ABSENT, FAILED, NOT_APPLICABLE, OK, status_kind, status_label
+from roadtruth.harness.report.figures import display_unit, state_label
+from roadtruth.harness.report.ranking import MeanRank, rank_state
+from roadtruth.harness.report.rundata import RunData
+from roadtruth.harness.report.sections.base import Section
+from roadtruth.harness.report.verdicts import ABSENT, FAILED, NOT_APPLICABLE, OK, status_kind, status_label
 
 #: Metrics the page can switch between: (column, label, scaled by the state's display unit?, sense).
 #: sense: "low" = lower is better, "high" = higher is better, "one" = closer to 1 is better.

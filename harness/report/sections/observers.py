@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from harness.report.rundata import RunData
-from harness.report.sections.base import Section
-from harness.report.verdicts import (
+from roadtruth.harness.report.rundata import RunData
+from roadtruth.harness.report.sections.base import Section
+from roadtruth.harness.report.verdicts import (
     FAILED,
     NOT_APPLICABLE,
     count_statuses,

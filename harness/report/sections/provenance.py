@@ -6,8 +6,8 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from harness.report.rundata import RunData
-from harness.report.sections.base import Section
+from roadtruth.harness.report.rundata import RunData
+from roadtruth.harness.report.sections.base import Section
 
 
 class ProvenanceSection(Section):

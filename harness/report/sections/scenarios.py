@@ -9,9 +9,9 @@ from typing import Any
 
 import pandas as pd
 
-from harness.report.figures import TRUTH_EVENTS, state_figure, trajectory_figure
-from harness.report.rundata import RunData
-from harness.report.sections.base import Section
+from roadtruth.harness.report.figures import TRUTH_EVENTS, state_figure, trajectory_figure
+from roadtruth.harness.report.rundata import RunData
+from roadtruth.harness.report.sections.base import Section
 
 
 def slug(text: str) -> str:

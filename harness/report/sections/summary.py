@@ -5,13 +5,13 @@ from __future__ import annotations
 
 from typing import Any
 
-from harness.report.figures import display_unit, state_label
-from harness.report.ranking import leaders as best_of
-from harness.report.rundata import RunData
-from harness.report.sections.base import Section
-from harness.report.sections.leaderboard import state_ranks
-from harness.report.sections.scenarios import slug, truth_summary
-from harness.report.verdicts import (
+from roadtruth.harness.report.figures import display_unit, state_label
+from roadtruth.harness.report.ranking import leaders as best_of
+from roadtruth.harness.report.rundata import RunData
+from roadtruth.harness.report.sections.base import Section
+from roadtruth.harness.report.sections.leaderboard import state_ranks
+from roadtruth.harness.report.sections.scenarios import slug, truth_summary
+from roadtruth.harness.report.verdicts import (
     FAILED,
     NOT_APPLICABLE,
     count_statuses,

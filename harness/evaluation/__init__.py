@@ -1,0 +1,1 @@
+"""Evaluation: observers run on measurements (isolated processes), estimates scored against the truth."""
