@@ -240,8 +240,15 @@ def test_a_crashed_scenario_worker_costs_only_its_scenario(tmp_path: Path, plugi
     proc = _roadtruth(["run", "--jobs", "2", "--no-render", "--scenario", ",".join(scenarios),
                        "--observer", GOOD, "--out", str(out)], plugin_env)
     try:
+        def warmed_up() -> bool:
+            # Parallel runs first design every observer in one worker (the design warm-up, whose
+            # failure is ignored by design); only a worker busy after it holds a scenario.
+            return any(p.is_file() for d in (tmp_path / "cache").rglob("design-warmups") for p in d.iterdir())
+
         def busy_worker() -> int | None:
             # a worker with an observer process is in the middle of a scenario
+            if not warmed_up():
+                return None
             procs = _processes()
             group = _group(proc.pid)
             for pid, (ppid, cmd) in procs.items():

@@ -139,29 +139,27 @@ def test_report_turns_only_one_state_long_at_a_time(replays: dict[str, Path], mo
                                                      key: str) -> None:
     run = replays[key]
     n_rows = len(read_table(table_io.table_path(run / "drive", "estimates")))
-    calls: list[tuple[list[str] | None, int, int]] = []
-    real = rundata.estimates_long
+    calls: list[tuple[str, int]] = []
+    real = rundata.ScenarioFiles.series_of
 
-    def spy(frame: pd.DataFrame, observers: object = None, **kw: object) -> pd.DataFrame:
-        out = real(frame, observers, **kw)  # type: ignore[arg-type]
-        states = kw.get("states")
-        calls.append((list(states) if states is not None else None,  # type: ignore[call-overload]
-                      len(out), out["observer"].nunique() if len(out) else 0))
+    def spy(self: rundata.ScenarioFiles, state: str) -> list[rundata.ObserverSeries]:
+        out = real(self, state)
+        calls.append((state, len(out)))
+        for s in out:  # one state's samples of one observer: at most one per step
+            assert len(s.t_s) <= n_rows
         return out
 
     def whole(_self: object) -> pd.DataFrame:
         raise AssertionError("the report read the whole estimates table in long form")
 
-    monkeypatch.setattr(rundata, "estimates_long", spy)
+    monkeypatch.setattr(rundata.ScenarioFiles, "series_of", spy)
     monkeypatch.setattr(rundata.ScenarioFiles, "estimates", property(whole))
     build_report(run)
     monkeypatch.undo()
     assert calls, "no figure of an estimated state"
-    for states, rows, observers in calls:
-        assert states is not None and len(states) == 1
-        assert rows <= n_rows * observers  # one state's rows: at most one per step and observer
-    plotted = [s[0] for s, _, _ in calls if s]
+    plotted = [state for state, _ in calls]
     assert "beta_rad" in plotted and len(set(plotted)) == len(plotted)  # each state read once
+    assert all(n >= 1 for _, n in calls)
     html = (run / "index.html").read_text()
     assert "kf_bicycle" in html and "open_loop_bicycle" in html
 

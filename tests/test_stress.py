@@ -197,10 +197,25 @@ def test_breaking_point_at_the_known_mu_and_fault_level_with_the_threshold_used(
 
 
 def test_thresholds_come_from_the_shipped_ci_rules_when_one_matches() -> None:
+    import re
+
+    import yaml
+
+    from roadtruth.harness.jobs.check_rules import DEFAULT_THRESHOLDS
     from roadtruth.harness.report.stress_report import rmse_threshold
 
     limit, source = rmse_threshold("step_steer", "kf_bicycle", "beta_rad")
-    assert limit == 0.0016 and source.startswith("ci.yaml rules[")
+    m = re.fullmatch(r"ci\.yaml rules\[(\d+)\]", source)
+    assert m, source
+    rule = yaml.safe_load(DEFAULT_THRESHOLDS.read_text(encoding="utf-8"))["rules"][int(m.group(1))]
+
+    def names(v: object) -> list[str]:
+        return [v] if isinstance(v, str) else list(v)  # type: ignore[arg-type]
+
+    # The limit is the shipped rule's own ceiling, and that rule is about this scenario, observer and state.
+    assert rule["metric"] == "rmse" and limit == rule["max"] > 0.0
+    assert "step_steer" in names(rule["scenario"]) and "kf_bicycle" in names(rule["observer"])
+    assert "beta_rad" in names(rule["state"])
     assert rmse_threshold("lane_change", "kf_bicycle", "vy_mps") == (0.3, "default")
 
 

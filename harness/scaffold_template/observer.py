@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from roadtruth.observers.base import ScalarLoopObserver
+from roadtruth import ScalarLoopObserver
 
 #: Below this reference speed [m/s] the axle model (1/v_x) is not used and the estimate decays to 0.
 MIN_SPEED_MPS = 2.0
