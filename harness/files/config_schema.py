@@ -21,15 +21,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from collections.abc import Callable, Iterable
 from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
 from roadtruth.harness.errors import InputError
-from roadtruth.harness.files.outdir import OutputPathError, check_writable
+from roadtruth.harness.files.outdir import OutputPathError, check_writable, write_atomic
 from roadtruth.harness.files.strict_yaml import FieldRead, trace_fields
 
 #: ``$schema`` of every generated schema.
@@ -356,13 +354,4 @@ def write_schema(fmt: str, out: Path) -> None:
             ours = False
         if not ours:
             raise OutputPathError(f"--out {out} exists and is not a schema roadtruth wrote; choose a new file")
-    text = schema_text(fmt)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent if
-                               out.parent.exists() else None)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, out)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    write_atomic(out, schema_text(fmt))

@@ -22,7 +22,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass
 from fnmatch import fnmatchcase
 from pathlib import Path
@@ -31,6 +30,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from roadtruth.harness.files.outdir import write_atomic
 from roadtruth.harness.jobs.check_rules import (
     DEFAULT_THRESHOLDS,
     KEYS,
@@ -336,20 +336,6 @@ def reason_of(o: CheckOutcome) -> str:
 
 
 # ---- files ------------------------------------------------------------------------------------------
-
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary sibling file renamed into place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.partial-", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
-            f.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
 
 def outcomes_frame(outcomes: list[CheckOutcome] | tuple[CheckOutcome, ...]) -> pd.DataFrame:
     """The outcomes as a table (the ``check.csv`` written next to ``metrics.csv``)."""

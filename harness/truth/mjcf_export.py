@@ -10,11 +10,9 @@ masses and road, not the drive.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
-from roadtruth.harness.files.outdir import OutputPathError, check_writable
+from roadtruth.harness.files.outdir import OutputPathError, check_writable, write_atomic
 
 #: The root element every model roadtruth writes starts with (how ``--out`` recognises its own file).
 MODEL_PREFIX = '<mujoco model="roadtruth_'
@@ -57,13 +55,4 @@ def write_model(vehicle: str, scenario: str | None, out: Path) -> None:
             ours = False
         if not ours or out.is_dir():
             raise OutputPathError(f"--out {out} exists and is not a model roadtruth wrote; choose a new file")
-    text = model_text(vehicle, scenario)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, out)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    write_atomic(out, model_text(vehicle, scenario))
