@@ -12,7 +12,7 @@ stays the plain-Python reference. What makes it fast is not a different algorith
   reassociation, the bits do not change);
 - the backward pass of the network runs its inner loops over one contiguous index (row views),
   which LLVM vectorises;
-- Adam computes its bias corrections ``1 - beta^t`` once per step instead of once per parameter;
+- Adam is the step's own ``adam_step`` (one compiled function for both paths);
 - the newest queue snapshot of the ensemble (1.51) is the network being trained (a snapshot is
   taken right after each Adam step), so its output is the one the training step computes.
 
@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from roadtruth.harness.truth.tire import jit
+from roadtruth.observers.neural_adaptive_nguyen import adam_step
 from roadtruth.observers.uio_nguyen import SUBSTEP_RATE, TWO_PI, affine_rk4
 
 if TYPE_CHECKING:
@@ -224,28 +225,6 @@ def substep(x: np.ndarray, S: np.ndarray, g: np.ndarray, theta: np.ndarray, A: n
     for i in range(4):
         x[i] += dt * dx[i]
     return loss
-
-
-@jit
-def adam(theta: np.ndarray, g: np.ndarray, m: np.ndarray, v: np.ndarray, t: int, lr: float, clip: float,
-         scale: float) -> None:
-    """``adam_step`` with the bias corrections computed once: same values, vectorisable loop."""
-    n = theta.shape[0]
-    nrm = 0.0
-    for k in range(n):
-        nrm += (g[k] * scale) ** 2
-    nrm = math.sqrt(nrm)
-    c = scale * (clip / nrm if nrm > clip else 1.0)
-    b1, b2 = 0.9, 0.999
-    c1 = 1 - b1 ** t
-    c2 = 1 - b2 ** t
-    for k in range(n):
-        gk = g[k] * c
-        mk = b1 * m[k] + (1 - b1) * gk
-        vk = b2 * v[k] + (1 - b2) * gk * gk
-        m[k] = mk
-        v[k] = vk
-        theta[k] -= lr * (mk / c1) / (math.sqrt(vk / c2) + 1e-8)
 
 
 @jit
@@ -464,7 +443,7 @@ def nao_run(t: np.ndarray, Y: np.ndarray, latch: np.ndarray, u: np.ndarray, fres
                 k_acc += 1
                 if k_acc >= K:
                     adam_t += 1
-                    adam(theta, g, m, v, adam_t, lr, clip, 1.0 / k_acc)
+                    adam_step(theta, g, m, v, adam_t, lr, clip, 1.0 / k_acc)
                     g[:] = 0.0
                     k_acc = 0
                     if K > 1:
