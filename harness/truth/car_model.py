@@ -1,6 +1,8 @@
-"""MJCF of the car, generated from a ``VehicleParams`` (+ the scenario's visuals for renders).
+"""The car's MuJoCo model: the base model ``mjcf/car.xml`` with a ``VehicleParams``' values written in.
 
-Layout (shared/notes/mujoco-car-and-tires.md, section 4.1)::
+``mjcf/car.xml`` (package ``roadtruth.mjcf``) is real MJCF that MuJoCo opens on its own; it holds the
+layout (shared/notes/mujoco-car-and-tires.md, section 4.1), the joint types, actuators, sensors,
+materials and every constant that does not depend on the vehicle::
 
     chassis  <freejoint>, inertial at the CG, collision box with the floor only
       upright_XX  slide joint susp_XX (q > 0 = bump), spring/damper, bump stops = range; the axis is
@@ -8,6 +10,17 @@ Layout (shared/notes/mujoco-car-and-tires.md, section 4.1)::
                   centre sits at h_rc on the centre line (docs/PHYSICS.md, "Suspension")
         [front] knuckle_XX  hinge steer_XX (z), position servo
           wheel_XX  hinge spin_XX (y), motor (drive + brake torque)
+
+``build_mjcf`` writes the set's values into the named elements of that file (masses, inertias, corner
+positions, suspension axes, rates and travel, anti-roll bars, wheel and body sizes, GNSS site, chase
+camera), the scenario's floor and time step, and for renders the scenario's visuals (road surface
+mesh, lane dashes, friction patches, the lead car of ``mjcf/lead_car.xml``), and returns the MJCF text.
+Each value is named by its element and attribute (``("joint", "susp_fl", "stiffness")``); once per
+process the base file is cut at those attributes into a template, so a model costs a string join.
+Why not ``mujoco.MjSpec``: a spec compiles to the same model, but the text is what a truth keeps for
+its renders and what ``roadtruth mjcf`` writes, and ``MjSpec.to_xml`` prints 6 significant digits,
+so its text would reload as a different model (a spring rate off by 0.04 N/m, an inertia by
+0.004 kg m^2). Numbers are written with 9 significant digits, as the models have always carried them.
 
 Wheels have NO MuJoCo contact: the tire forces (normal load from a radial tire spring, Magic Formula
 Fx/Fy/Mz) are computed by ``roadtruth.harness.truth.simulate`` each step and applied at the contact point through
@@ -25,21 +38,25 @@ at q = 0, and the corners hang so that each tire spring is compressed by its sta
 from __future__ import annotations
 
 import math
+import re
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
+from functools import cache
 from typing import Any
+from xml.sax.saxutils import escape
 
 import numpy as np
 
 from roadtruth.harness.errors import VehicleError
 from roadtruth.harness.truth.road_mesh import road_surface_mesh
 from roadtruth.harness.truth.vehicle import G, VehicleParams
+from roadtruth.mjcf import template_path
 
 CORNERS: tuple[str, ...] = ("fl", "fr", "rl", "rr")
 #: Fractions of the unsprung corner mass in the upright, the steering knuckle and the wheel.
 UPRIGHT_SHARE, KNUCKLE_SHARE = 0.3, 0.1
-#: Steering servo stiffness [N m/rad] and the steering-axis armature [kg m^2].
-STEER_KP = 20000.0
-STEER_ARMATURE = 0.3
+#: The base model of the car and the lead car's model (files of ``roadtruth.mjcf``).
+BASE_MODEL, LEAD_CAR_MODEL = "car.xml", "lead_car.xml"
 #: Chassis collision box: ground clearance under the CG plane and body size margins [m].
 GROUND_CLEARANCE_M = 0.12
 FRONT_OVERHANG_M = 0.9
@@ -139,7 +156,63 @@ def _vec(a: Any) -> str:
     return " ".join(_f(float(x)) for x in a)
 
 
-def _corner_xml(v: VehicleParams, i: int, g: CornerGeometry) -> str:
+#: A value written into the base model: (element tag, element name, attribute). Unnamed elements are
+#: addressed by tag (``mujoco``, ``option``) and a body's ``inertial`` by the body's name.
+Key = tuple[str, str | None, str]
+#: Where the scenario's visuals go: the asset list's end, and the world between floor and chassis.
+_ASSETS, _WORLD = "roadtruth_assets", "roadtruth_world"
+
+
+@cache
+def _model_text(name: str) -> str:
+    """Text of a shipped model file of ``roadtruth.mjcf`` (read once per process)."""
+    with open(template_path(name), encoding="utf-8") as fh:
+        return fh.read()
+
+
+def _element(root: ET.Element, named: dict[tuple[str, str], ET.Element], key: Key) -> ET.Element:
+    tag, name, _ = key
+    if tag == root.tag and name is None:
+        return root
+    found = root.find(tag) if name is None else named.get(("body", name)) if tag == "inertial" else named.get((tag, name))
+    if found is not None and tag == "inertial":
+        found = found.find("inertial")
+    if found is None:
+        raise LookupError(f"the base car model {BASE_MODEL} has no <{tag}{'' if name is None else f' of {name}'}>")
+    return found
+
+
+@cache
+def _base_template(keys: tuple[Key, ...]) -> tuple[tuple[str, ...], tuple[Key | str, ...]]:
+    """The base model cut at the values ``keys`` name: (literal pieces, what goes between them).
+
+    Built once per process (per set of keys): the base file is parsed, each named attribute and the
+    two visual insertion points get a marker, the tree is written out and cut at the markers. A model
+    is then the pieces joined with its values, as fast as formatting a string, and its elements,
+    order and every other attribute are the base file's.
+    """
+    root = ET.fromstring(_model_text(BASE_MODEL))
+    named = {(el.tag, el.get("name")): el for el in root.iter() if el.get("name") is not None}
+    slots: list[Key | str] = [*keys, _ASSETS, _WORLD]
+    for j, key in enumerate(keys):
+        _element(root, named, key).set(key[2], f"@@{j}@@")
+    asset, worldbody = root.find("asset"), root.find("worldbody")
+    floor = named.get(("geom", "floor"))
+    if asset is None or worldbody is None or floor is None:
+        raise LookupError(f"the base car model {BASE_MODEL} needs an <asset>, a <worldbody> and a floor geom")
+    asset.append(ET.Element(_ASSETS))
+    worldbody.insert(list(worldbody).index(floor) + 1, ET.Element(_WORLD))
+    # The base file's comments are left out (the lines they leave are dropped): the text is the model.
+    text = re.sub(r"\n\s*\n", "\n", ET.tostring(root, encoding="unicode")) + "\n"
+    text = text.replace(f"<{_ASSETS} />", f"@@{len(keys)}@@").replace(f"<{_WORLD} />", f"@@{len(keys) + 1}@@")
+    cut = re.split(r"@@(\d+)@@", text)
+    if len(cut) != 2 * len(slots) + 1:
+        raise LookupError(f"the base car model {BASE_MODEL} already contains a '@@' marker")
+    return tuple(cut[0::2]), tuple(slots[int(j)] for j in cut[1::2])
+
+
+def _corner_values(out: dict[Key, str], v: VehicleParams, i: int, g: CornerGeometry) -> None:
+    """Corner ``i``'s position, suspension joint, masses, inertias and wheel sizes, into ``out``."""
     name = CORNERS[i]
     front = i < 2
     mu = v.unsprung_mass_kg
@@ -153,30 +226,34 @@ def _corner_xml(v: VehicleParams, i: int, g: CornerGeometry) -> str:
     th = float(g.incline[i])
     side = 1.0 if g.position[i, 1] > 0.0 else -1.0
     c2 = math.cos(th) ** 2
-    axis = f"0 {_f(side * math.sin(th))} {_f(math.cos(th))}"
-    wheel = (f'<body name="wheel_{name}">'
-             f'<joint name="spin_{name}" type="hinge" axis="0 1 0" damping="0.05"/>'
-             f'<inertial pos="0 0 0" mass="{_f(mu * (1 - UPRIGHT_SHARE - KNUCKLE_SHARE))}" '
-             f'diaginertia="{_f(trans)} {_f(spin)} {_f(trans)}"/>'
-             f'<geom name="tire_{name}" type="cylinder" size="{_f(R)} {_f(TIRE_HALF_WIDTH_M)}" euler="1.5707963 0 0" '
-             f'contype="0" conaffinity="0" mass="0" material="tire"/>'
-             f'<geom name="rim_{name}" type="cylinder" size="{_f(0.6 * R)} {_f(TIRE_HALF_WIDTH_M + 0.005)}" '
-             f'euler="1.5707963 0 0" contype="0" conaffinity="0" mass="0" material="rim"/>'
-             f'<geom name="spoke_{name}" type="box" size="{_f(0.55 * R)} {_f(TIRE_HALF_WIDTH_M + 0.01)} 0.03" '
-             f'contype="0" conaffinity="0" mass="0" rgba="0.2 0.2 0.2 1"/>'
-             f'</body>')
+    out["body", f"upright_{name}", "pos"] = _vec(g.position[i])
+    susp = ("joint", f"susp_{name}")
+    out[(*susp, "axis")] = f"0 {_f(side * math.sin(th))} {_f(math.cos(th))}"
+    out[(*susp, "range")] = f"{_f(-s.travel_m / math.cos(th))} {_f(s.travel_m / math.cos(th))}"
+    out[(*susp, "stiffness")], out[(*susp, "springref")] = _f(k * c2), _f(g.spring_ref[i])
+    out[(*susp, "damping")] = _f(c * c2)
+    i_up = _f(own * (0.75 if front else 1.0))
+    out["inertial", f"upright_{name}", "mass"] = _f(m_up)
+    out["inertial", f"upright_{name}", "diaginertia"] = f"{i_up} {i_up} {i_up}"
     if front:
-        wheel = (f'<body name="knuckle_{name}">'
-                 f'<joint name="steer_{name}" type="hinge" axis="0 0 1" range="-1.2 1.2" armature="{_f(STEER_ARMATURE)}" damping="5"/>'
-                 f'<inertial pos="0 0 0" mass="{_f(mu * KNUCKLE_SHARE)}" diaginertia="{_f(own * 0.25)} {_f(own * 0.25)} {_f(own * 0.25)}"/>'
-                 f'{wheel}</body>')
-    return (f'<body name="upright_{name}" pos="{_vec(g.position[i])}">'
-            f'<joint name="susp_{name}" type="slide" axis="{axis}" range="{_f(-s.travel_m / math.cos(th))} '
-            f'{_f(s.travel_m / math.cos(th))}" stiffness="{_f(k * c2)}" springref="{_f(g.spring_ref[i])}" '
-            f'damping="{_f(c * c2)}" armature="1"/>'
-            f'<inertial pos="0 0 0" mass="{_f(m_up)}" diaginertia="{_f(own * (0.75 if front else 1.0))}'
-            f' {_f(own * (0.75 if front else 1.0))} {_f(own * (0.75 if front else 1.0))}"/>'
-            f'{wheel}</body>')
+        i_kn = _f(own * 0.25)
+        out["inertial", f"knuckle_{name}", "mass"] = _f(mu * KNUCKLE_SHARE)
+        out["inertial", f"knuckle_{name}", "diaginertia"] = f"{i_kn} {i_kn} {i_kn}"
+    out["inertial", f"wheel_{name}", "mass"] = _f(mu * (1 - UPRIGHT_SHARE - KNUCKLE_SHARE))
+    out["inertial", f"wheel_{name}", "diaginertia"] = f"{_f(trans)} {_f(spin)} {_f(trans)}"
+    out["geom", f"tire_{name}", "size"] = f"{_f(R)} {_f(TIRE_HALF_WIDTH_M)}"
+    out["geom", f"rim_{name}", "size"] = f"{_f(0.6 * R)} {_f(TIRE_HALF_WIDTH_M + 0.005)}"
+    out["geom", f"spoke_{name}", "size"] = f"{_f(0.55 * R)} {_f(TIRE_HALF_WIDTH_M + 0.01)} 0.03"
+
+
+@cache
+def _lead_car_text() -> str:
+    """The ``lead`` body of ``mjcf/lead_car.xml`` as MJCF text."""
+    lead = ET.fromstring(_model_text(LEAD_CAR_MODEL)).find("worldbody/body[@name='lead']")
+    if lead is None:
+        raise LookupError(f"the lead car model {LEAD_CAR_MODEL} has no <body name=\"lead\">")
+    lead.tail = None
+    return ET.tostring(lead, encoding="unicode")
 
 
 def _patch_mesh(vertices: np.ndarray, extent: tuple[float, float, float, float]) -> tuple[str, str] | None:
@@ -335,16 +412,13 @@ def _scenario_visuals(scenario: Any, extent: tuple[float, float, float, float]) 
         geoms.append(f'<geom name="patch_{j}" type="mesh" mesh="patch_{j}" contype="0" conaffinity="0" '
                      f'rgba="{PATCH_RGBA.get(p.surface, PATCH_RGBA[""])}" group="2"/>')
     if scenario.lead is not None:
-        geoms.append('<body name="lead" mocap="true" pos="0 0 0">'
-                     '<geom type="box" size="2.25 0.9 0.55" pos="0 0 0.75" contype="0" conaffinity="0" rgba="0.8 0.15 0.1 1"/>'
-                     '<geom type="box" size="1.2 0.8 0.3" pos="-0.2 0 1.5" contype="0" conaffinity="0" rgba="0.3 0.35 0.45 1"/>'
-                     '</body>')
+        geoms.append(_lead_car_text())
     return "".join(assets), "".join(geoms)
 
 
 def build_mjcf(vehicle: VehicleParams, scenario: Any = None, *, timestep_s: float = 0.001,
                visuals: bool = False) -> str:
-    """MJCF text of the car on the scenario's floor (and, for renders, the scenario's visuals).
+    """MJCF text of the car (``mjcf/car.xml`` with the set's values) on the scenario's floor.
 
     Parameters
     ----------
@@ -358,7 +432,8 @@ def build_mjcf(vehicle: VehicleParams, scenario: Any = None, *, timestep_s: floa
 
     Returns
     -------
-    XML string for ``mujoco.MjModel.from_xml_string``.
+    XML string for ``mujoco.MjModel.from_xml_string``: the base model's elements in its order, the
+    visuals (if any) in the world between the floor and the chassis.
     """
     g = corner_geometry(vehicle)
     ms, offset, inertia = chassis_inertial(vehicle)
@@ -380,62 +455,32 @@ def build_mjcf(vehicle: VehicleParams, scenario: Any = None, *, timestep_s: floa
         floor_z = min(0.0, float(scenario.road.samples[:, 5].min()) - 1.5)
     cx, cy = (extent[0] + extent[1]) / 2.0, (extent[2] + extent[3]) / 2.0
     hx, hy = (extent[1] - extent[0]) / 2.0, (extent[3] - extent[2]) / 2.0
-    corners = "".join(_corner_xml(vehicle, i, g) for i in range(4))
-    c2f, c2r = math.cos(g.incline[0]) ** 2, math.cos(g.incline[2]) ** 2
-    steer = "".join(f'<position name="steer_{c}" joint="steer_{c}" kp="{_f(STEER_KP)}" dampratio="1"/>'
-                    for c in CORNERS[:2])
-    torque = "".join(f'<motor name="torque_{c}" joint="spin_{c}"/>' for c in CORNERS)
-    return f"""<mujoco model="roadtruth_{vehicle.name}">
-  <compiler angle="radian" autolimits="true"/>
-  <option timestep="{_f(timestep_s)}" integrator="implicitfast" cone="elliptic" gravity="0 0 {_f(-G)}"/>
-  <visual>
-    <global offwidth="640" offheight="480"/>
-    <quality shadowsize="2048"/>
-    <map znear="0.02" zfar="3000"/>
-  </visual>
-  <asset>
-    <texture name="sky" type="skybox" builtin="gradient" rgb1="0.55 0.7 0.9" rgb2="0.95 0.97 1" width="64" height="64"/>
-    <texture name="ground" type="2d" builtin="checker" rgb1="0.32 0.33 0.34" rgb2="0.36 0.37 0.38" width="64" height="64"/>
-    <material name="ground" texture="ground" texrepeat="{_f(hx / 5)} {_f(hy / 5)}"/>
-    <material name="body" rgba="0.15 0.35 0.7 1"/>
-    <material name="glass" rgba="0.2 0.25 0.3 0.9"/>
-    <material name="tire" rgba="0.08 0.08 0.08 1"/>
-    <material name="rim" rgba="0.7 0.7 0.72 1"/>
-    <material name="marking" rgba="0.95 0.95 0.9 1"/>
-    {assets}
-  </asset>
-  <worldbody>
-    <light name="sun" directional="true" pos="0 0 50" dir="-0.3 -0.2 -1" diffuse="0.8 0.8 0.8"/>
-    <geom name="floor" type="plane" pos="{_f(cx)} {_f(cy)} {_f(floor_z)}" size="{_f(hx)} {_f(hy)} 0.1" material="ground"
-          priority="1" contype="1" conaffinity="2" friction="1 0.005 0.0001"/>
-    {world_visuals}
-    <body name="chassis" pos="0 0 {_f(vehicle.h_cg_m)}">
-      <freejoint name="root"/>
-      <inertial pos="{_vec(offset)}" mass="{_f(ms)}" diaginertia="{_vec(inertia)}"/>
-      <geom name="body" type="box" pos="{_f(body_cx)} 0 {_f((z_bottom + z_top * 0.55) / 2 + 0.1)}"
-            size="{_f(body_len / 2)} {_f(half_w - 0.12)} {_f((z_top * 0.55 - z_bottom) / 2)}"
-            contype="2" conaffinity="1" mass="0" material="body"/>
-      <geom name="cabin" type="box" pos="{_f(body_cx - 0.3)} 0 {_f(z_top * 0.8)}"
-            size="{_f(body_len * 0.28)} {_f(half_w - 0.2)} {_f(z_top * 0.2 + 0.05)}"
-            contype="0" conaffinity="0" mass="0" material="glass"/>
-      <site name="imu" pos="0 0 0" size="0.03"/>
-      <site name="gnss" pos="{_f(-0.2)} 0 {_f(z_top + 0.02)}" size="0.03"/>
-      <camera name="chase" pos="{_f(-vehicle.lr_m - 7.0)} 0 {_f(2.8 - vehicle.h_cg_m)}" xyaxes="0 -1 0 0.28 0 1"/>
-      <camera name="top" mode="trackcom" pos="0 0 40" xyaxes="1 0 0 0 1 0"/>
-      {corners}
-    </body>
-  </worldbody>
-  <tendon>
-    <fixed name="arb_f" stiffness="{_f(s.arb_f_Npm * c2f)}"><joint joint="susp_fl" coef="1"/><joint joint="susp_fr" coef="-1"/></fixed>
-    <fixed name="arb_r" stiffness="{_f(s.arb_r_Npm * c2r)}"><joint joint="susp_rl" coef="1"/><joint joint="susp_rr" coef="-1"/></fixed>
-  </tendon>
-  <actuator>
-    {steer}
-    {torque}
-  </actuator>
-  <sensor>
-    <accelerometer name="imu_acc" site="imu"/>
-    <gyro name="imu_gyro" site="imu"/>
-  </sensor>
-</mujoco>
-"""
+    out: dict[Key, str] = {
+        ("mujoco", None, "model"): f"roadtruth_{vehicle.name}",
+        ("option", None, "timestep"): _f(timestep_s),
+        ("option", None, "gravity"): f"0 0 {_f(-G)}",
+        ("material", "ground", "texrepeat"): f"{_f(hx / 5)} {_f(hy / 5)}",
+        ("geom", "floor", "pos"): f"{_f(cx)} {_f(cy)} {_f(floor_z)}",
+        ("geom", "floor", "size"): f"{_f(hx)} {_f(hy)} 0.1",
+        ("body", "chassis", "pos"): f"0 0 {_f(vehicle.h_cg_m)}",
+        ("inertial", "chassis", "pos"): _vec(offset),
+        ("inertial", "chassis", "mass"): _f(ms),
+        ("inertial", "chassis", "diaginertia"): _vec(inertia),
+        ("geom", "body", "pos"): f"{_f(body_cx)} 0 {_f((z_bottom + z_top * 0.55) / 2 + 0.1)}",
+        ("geom", "body", "size"): f"{_f(body_len / 2)} {_f(half_w - 0.12)} {_f((z_top * 0.55 - z_bottom) / 2)}",
+        ("geom", "cabin", "pos"): f"{_f(body_cx - 0.3)} 0 {_f(z_top * 0.8)}",
+        ("geom", "cabin", "size"): f"{_f(body_len * 0.28)} {_f(half_w - 0.2)} {_f(z_top * 0.2 + 0.05)}",
+        ("site", "gnss", "pos"): f"{_f(-0.2)} 0 {_f(z_top + 0.02)}",
+        ("camera", "chase", "pos"): f"{_f(-vehicle.lr_m - 7.0)} 0 {_f(2.8 - vehicle.h_cg_m)}",
+        ("fixed", "arb_f", "stiffness"): _f(s.arb_f_Npm * math.cos(g.incline[0]) ** 2),
+        ("fixed", "arb_r", "stiffness"): _f(s.arb_r_Npm * math.cos(g.incline[2]) ** 2),
+    }
+    for i in range(4):
+        _corner_values(out, vehicle, i, g)
+    pieces, slots = _base_template(tuple(out))
+    fill = {_ASSETS: assets, _WORLD: world_visuals}
+    text = [pieces[0]]
+    for slot, piece in zip(slots, pieces[1:], strict=True):
+        # XML-escaped: a set's name is the user's text (every number is plain digits).
+        text += [fill[slot] if isinstance(slot, str) else escape(out[slot], {'"': "&quot;"}), piece]
+    return "".join(text)
