@@ -27,6 +27,7 @@ WIDTH, HEIGHT = 640, 480
 VIDEO_FPS = 10
 MAX_VIDEO_S = 6.0
 MAX_KEY_FRAMES = 8
+PLANE_GRID_M = 5.0  # render grid of the ground plane [m]
 WHEELS = ("fl", "fr", "rl", "rr")
 
 
@@ -176,6 +177,66 @@ def _estimate_at(est: pd.DataFrame | None, times: np.ndarray) -> np.ndarray:
     return out
 
 
+class Offscreen:
+    """Offscreen MuJoCo rendering on one GL context per process, reused for every model it draws.
+
+    ``mujoco.Renderer`` makes a new GL context per model; on Mesa's software renderer the first
+    ``MjrContext`` of a context costs ~0.35 s (shader and font set-up), later ones ~0.04 s, so a
+    process that renders several scenarios keeps its context. The per-model part (``MjrContext``:
+    textures, meshes; the scene) is made by :meth:`for_model` and freed by :meth:`close`.
+    """
+
+    _gl: Any = None           # the process's GL context ...
+    _gl_key: tuple[int, int, int] | None = None  # ... (pid, width, height) it was made for
+
+    def __init__(self, model: Any, width: int, height: int) -> None:
+        import mujoco
+
+        self._mujoco = mujoco
+        self.model = model
+        self.width, self.height = width, height
+        # MuJoCo's own text overlay is not used (OpenCV draws the labels): the smallest font atlas.
+        self.context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_50)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self.context)
+        self.scene = mujoco.MjvScene(model, maxgeom=10000)
+        # Shadows and reflections triple the cost on llvmpipe and add nothing to a diagnosis.
+        self.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
+        self.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
+        self.option = mujoco.MjvOption()
+        self.viewport = mujoco.MjrRect(0, 0, width, height)
+        self._rgb = np.empty((height, width, 3), dtype=np.uint8)
+
+    @classmethod
+    def for_model(cls, model: Any, width: int, height: int) -> Offscreen:
+        """An offscreen renderer of ``model`` at ``width`` x ``height`` on this process's GL context."""
+        import mujoco
+
+        key = (os.getpid(), width, height)
+        if cls._gl_key != key:  # none yet, another size, or inherited through fork: make a new one
+            cls._gl = mujoco.GLContext(width, height)
+            cls._gl_key = key
+        cls._gl.make_current()
+        return cls(model, width, height)
+
+    def render(self, data: Any, camera: int) -> np.ndarray:
+        """RGB image (height, width, 3) uint8 of ``data`` seen from fixed camera ``camera`` (-1: free)."""
+        mujoco = self._mujoco
+        cam = mujoco.MjvCamera()
+        if camera >= 0:
+            cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
+            cam.fixedcamid = camera
+        else:
+            mujoco.mjv_defaultFreeCamera(self.model, cam)
+        mujoco.mjv_updateScene(self.model, data, self.option, None, cam, mujoco.mjtCatBit.mjCAT_ALL, self.scene)
+        mujoco.mjr_render(self.viewport, self.scene, self.context)
+        mujoco.mjr_readPixels(self._rgb, None, self.viewport, self.context)
+        return np.flipud(self._rgb).copy()  # GL rows run bottom-up; the caller draws on its own copy
+
+    def close(self) -> None:
+        """Free the model's GPU resources (the process's GL context stays for the next model)."""
+        self.context.free()
+
+
 def render_scenario(
     truth: Any,
     run_dir: Path,
@@ -216,6 +277,11 @@ def render_scenario(
         model.vis.global_.offheight = max(model.vis.global_.offheight, HEIGHT)
         # Multisampling triples the cost on llvmpipe (software GL) for little visible gain.
         model.vis.quality.offsamples = 0
+        # A plane is drawn as a grid of quads at its third size (the car model's 0.1 m gives
+        # MuJoCo's maximum grid over a road hundreds of metres long); under a directional light
+        # a 5 m grid lights the same pixels (mean difference 0.04 of 255) at 0.4x the frame cost.
+        planes = model.geom_type == mujoco.mjtGeom.mjGEOM_PLANE
+        model.geom_size[planes, 2] = np.maximum(model.geom_size[planes, 2], PLANE_GRID_M)
         # znear is relative to the model extent, which the long road makes ~300 m: without this the
         # ground closer than ~6 m to the chase camera is clipped away.
         model.vis.map.znear = min(model.vis.map.znear, 0.2 / max(model.stat.extent, 1e-6))
@@ -223,12 +289,12 @@ def render_scenario(
     except Exception as e:
         return RenderResult(reason=f"model could not be rebuilt for rendering: {e}")
     try:
-        renderer = mujoco.Renderer(model, height=HEIGHT, width=WIDTH)
+        renderer = Offscreen.for_model(model, WIDTH, HEIGHT)
     except Exception as e:
         backend = os.environ.get("MUJOCO_GL", "")
         return RenderResult(reason=f"offscreen OpenGL unavailable (MUJOCO_GL={backend or 'unset'}): "
                                    f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}".strip())
-    camera: int | str = "chase" if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, "chase") >= 0 else -1
+    camera = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, "chase")
     lead_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "lead")
     lead_mocap = int(model.body_mocapid[lead_body]) if lead_body >= 0 else -1
     t_frame = frame["t_s"].to_numpy(float)
@@ -243,11 +309,7 @@ def render_scenario(
             if math.isfinite(lx) and math.isfinite(ly):
                 data.mocap_pos[lead_mocap, :2] = (lx, ly)
         mujoco.mj_forward(model, data)
-        renderer.update_scene(data, camera=camera)
-        # Shadows and reflections triple the cost on llvmpipe and add nothing to a diagnosis.
-        renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
-        renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
-        rgb = renderer.render()
+        rgb = renderer.render(data, camera)
         return annotate(rgb, frame.iloc[i], beta_est=beta_est, observer=observer, label=label)
 
     import cv2
