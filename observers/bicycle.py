@@ -1,4 +1,4 @@
-r"""Linear single-track (bicycle) model and the two model-only baselines.
+r"""Linear single-track (bicycle) model: the matrices the LMI designs and the observers build on.
 
 Model (Y. Wang, PhD dissertation, Auburn 2014, eqs. (3.13)–(3.18); also Rajamani, *Vehicle Dynamics and Control*,
 2nd ed., sec. 2.3). With the CONTRACT slip definitions linearised for small angles,
@@ -15,7 +15,8 @@ Model (Y. Wang, PhD dissertation, Auburn 2014, eqs. (3.13)–(3.18); also Rajama
 Three equivalent state-space forms are provided: ``(v_y, r)`` (3.17), ``(beta, r)`` (3.16) and
 ``(alpha_f, alpha_r)`` (3.18). The ZOH discretisation of a 2x2 system is in closed form
 (:func:`expm2_zoh`), because these models are stiff at low speed and a per-step ``scipy`` call would
-dominate the run time.
+dominate the run time. The model-only baselines built on it (``open_loop_bicycle``,
+``kinematic_vy``) are in :mod:`roadtruth.observers.open_loop`.
 """
 
 from __future__ import annotations
@@ -26,8 +27,6 @@ import math
 import numpy as np
 
 from roadtruth.harness.truth.vehicle import VehicleParams
-from roadtruth.observers.base import ScalarLoopObserver
-from roadtruth.observers.registry import register
 
 Matrix2 = tuple[float, float, float, float]  # row-major (a11, a12, a21, a22)
 
@@ -188,100 +187,3 @@ def slip_angles(delta: float, vy: float, r: float, vx: float, lf: float, lr: flo
     """Axle slip angles by the CONTRACT definitions ``alpha_f = delta - atan((vy + lf r)/vx)``,
     ``alpha_r = -atan((vy - lr r)/vx)`` [rad]."""
     return delta - math.atan((vy + lf * r) / vx), -math.atan((vy - lr * r) / vx)
-
-
-# ---- baselines -----------------------------------------------------------------------------------
-
-_VY_R_STATES = ("vy_mps", "yaw_rate_radps", "beta_rad", "alpha_f_rad", "alpha_r_rad")
-
-
-@register
-class OpenLoopBicycle(ScalarLoopObserver):
-    """Open-loop linear bicycle model driven by measured delta and v_x; no correction.
-
-    ``x' = A(v_x) x + B delta`` for ``x = (v_y, r)`` (eq. (3.17)), exact ZOH per step with the
-    latest inputs. ``beta = atan2(v_y, v_x)``; slip angles by the CONTRACT definitions.
-    """
-
-    name = "open_loop_bicycle"
-    citation = "Linear single-track model (Y. Wang, PhD dissertation, Auburn 2014, eq. (3.17); Rajamani 2012, sec. 2.3)"
-    inputs = ("delta_rad", "vx_mps")
-    states = _VY_R_STATES
-    default_options = {"vx_min_mps": 2.0}
-
-    def _setup(self) -> None:
-        v = self.vehicle
-        self._m, self._iz, self._lf, self._lr = v.mass_kg, v.yaw_inertia_kgm2, v.lf_m, v.lr_m
-        self._cf, self._cr = axle_stiffness(v)
-        self._vmin = float(self.options["vx_min_mps"])
-
-    def _initial_state(self) -> list[float]:
-        return [0.0, 0.0]
-
-    def _propagate(self, h: float, u: list[float]) -> None:
-        delta, vx = u[0], u[1]
-        if vx != vx or delta != delta:
-            return
-        v = max(vx, self._vmin)
-        m, iz, lf, lr, cf, cr = self._m, self._iz, self._lf, self._lr, self._cf, self._cr
-        a11 = -(cf + cr) / (m * v)
-        a12 = -(lf * cf - lr * cr) / (m * v) - v
-        a21 = -(lf * cf - lr * cr) / (iz * v)
-        a22 = -(lf * lf * cf + lr * lr * cr) / (iz * v)
-        E, G = expm2_zoh(a11, a12, a21, a22, h)
-        g1, g2 = cf / m * delta, lf * cf / iz * delta
-        vy, r = self._z
-        self._z = [E[0] * vy + E[1] * r + G[0] * g1 + G[1] * g2, E[2] * vy + E[3] * r + G[2] * g1 + G[3] * g2]
-
-    def _advance(self, t_s: float, y: list[float]) -> None:
-        h = self._tick(t_s, y)
-        if h > 0.0:
-            self._propagate(h, self._u)
-
-    def _values(self) -> list[float]:
-        vy, r = self._z
-        delta, vx = self._u
-        if vx != vx or vx <= 0.0:
-            return [vy, r, 0.0, 0.0, 0.0]
-        d = delta if delta == delta else 0.0
-        af, ar = slip_angles(d, vy, r, vx, self._lf, self._lr)
-        return [vy, r, math.atan2(vy, vx), af, ar]
-
-
-@register
-class KinematicVy(ScalarLoopObserver):
-    """Kinematic integration of the lateral velocity, ``v_y' = a_y - r v_x``.
-
-    Trapezoidal rule between consecutive input samples. No model, no correction: an accelerometer
-    bias ``b`` makes the error grow as ``b t`` (and roll-induced gravity leaks in the same way),
-    which is the point of this baseline.
-    """
-
-    name = "kinematic_vy"
-    citation = "Kinematic model v_y' = a_y - r v_x (e.g. Kiencke & Nielsen 2000, sec. 7.3)"
-    inputs = ("ay_mps2", "yaw_rate_radps", "vx_mps")
-    states = ("vy_mps", "beta_rad")
-    default_options: dict[str, object] = {}
-
-    def _initial_state(self) -> list[float]:
-        return [0.0]
-
-    def _reset_extra(self) -> None:
-        self._f_prev = math.nan
-
-    def _advance(self, t_s: float, y: list[float]) -> None:
-        h = self._tick(t_s, y)
-        ay, r, vx = self._u
-        f = ay - r * vx
-        if f != f:
-            return
-        if h > 0.0:
-            fp = self._f_prev if self._f_prev == self._f_prev else f
-            self._z[0] += 0.5 * h * (fp + f)
-        self._f_prev = f
-
-    def _values(self) -> list[float]:
-        vy = self._z[0]
-        vx = self._u[2]
-        beta = math.atan2(vy, vx) if vx == vx and vx > 0.0 else 0.0
-        return [vy, beta]

@@ -149,7 +149,7 @@ def test_broken_plugin_only_warns(monkeypatch: pytest.MonkeyPatch) -> None:
             raise ImportError("no module named nowhere")
 
     class GoodEntryPoint:
-        name, value = "good", "roadtruth.observers.bicycle:KinematicVy"
+        name, value = "good", "roadtruth.observers.open_loop:KinematicVy"
 
         def load(self) -> type:
             return registry.observer_class("kinematic_vy")
