@@ -124,6 +124,21 @@ def test_yaml_faults_file_and_preset_file_with_base(tmp_path):
         load_sensor_config("automotive", faults=str(bad))
 
 
+
+def test_an_edited_preset_file_is_read_again_and_loads_do_not_share_state(tmp_path):
+    # Parsed preset files are kept per process (a sweep loads the same suite for every case).
+    pf = tmp_path / "mine.yaml"
+    pf.write_text("name: mine\nbase: automotive\nsensors:\n  gnss: {rate_hz: 5}\n")
+    assert load_sensor_config(str(pf)).sensors["gnss"].rate_hz == 5
+    pf.write_text("name: mine\nbase: automotive\nsensors:\n  gnss: {rate_hz: 10, latency_s: 0.2}\n")
+    cfg = load_sensor_config(str(pf))
+    assert cfg.sensors["gnss"].rate_hz == 10 and cfg.sensors["gnss"].latency_s == 0.2
+    # Overrides merged onto one load must not leak into the next load of the same file.
+    over = load_sensor_config(str(pf), overrides={"gnss": {"rate_hz": 2}})
+    assert over.sensors["gnss"].rate_hz == 2
+    assert load_sensor_config(str(pf)).sensors["gnss"].rate_hz == 10
+    assert load_sensor_config("automotive").to_dict() == load_sensor_config("automotive").to_dict()
+
 def _bytes(m) -> bytes:
     return m.frame.to_csv(index=False).encode()
 

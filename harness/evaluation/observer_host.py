@@ -153,7 +153,7 @@ WARMUP_STEPS = 64
 
 
 def _load_compiled_code(obs: Any, t: np.ndarray, Y: np.ndarray) -> None:
-    """Run a copy of the designed observer over the first ``WARMUP_STEPS`` steps, untimed.
+    """Run a copy of the designed observer over the first ``WARMUP_STEPS`` steps, untimed (once per class).
 
     The first call of a numba kernel in a process loads it from the on-disk cache (and sets up
     numba's target context the first time of all): tens of milliseconds that would be charged to
@@ -162,12 +162,19 @@ def _load_compiled_code(obs: Any, t: np.ndarray, Y: np.ndarray) -> None:
     goes wrong here is left for the timed run to report.
     """
     n = min(len(t), WARMUP_STEPS)
-    if n < 2:
+    cls = type(obs)
+    if n < 2 or cls in _WARMED:
         return
     try:
         copy.deepcopy(obs).run(np.ascontiguousarray(t[:n]), np.ascontiguousarray(Y[:n]))
     except Exception:  # noqa: BLE001 - the real run reports any failure
-        pass
+        return
+    _WARMED.add(cls)
+
+
+#: Observer classes whose code this process has run once (their kernels are loaded: a long-lived
+#: host warms each class once, not once per scenario).
+_WARMED: set[type] = set()
 
 
 def run_request(req: ObserverRequest, *, in_process: bool = False) -> ObserverReply:
