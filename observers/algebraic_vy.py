@@ -24,6 +24,9 @@ No model, no gains, no feedback: the estimate is exact once the differentiator h
 noise-free camera (finite time, Levant 2003) and otherwise carries the differentiator's
 ``O(L^(1/3) eps^(2/3))`` noise error. Before the differentiator has run ``differentiator_settle_s``
 and when the camera is silent for more than ``camera_timeout_s`` there is no estimate (NaN).
+
+The whole per-sample update runs in one compiled kernel (:mod:`roadtruth.observers.algebraic_vy_loop`)
+that ``step()`` calls with one sample and ``run()`` with the whole log: both give the same bits.
 """
 
 from __future__ import annotations
@@ -32,9 +35,13 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+import numpy as np
+
 from roadtruth.harness.errors import InputError
-from roadtruth.observers.base import ScalarLoopObserver
-from roadtruth.observers.levant_differentiator import LAMBDAS, LevantDifferentiator
+from roadtruth.observers import algebraic_vy_loop as loop
+from roadtruth.observers.algebraic_vy_loop import levant_table
+from roadtruth.observers.base import EstimateTrack, ScalarLoopObserver, StepOutput
+from roadtruth.observers.levant_differentiator import LAMBDAS
 from roadtruth.observers.registry import register
 
 
@@ -75,7 +82,10 @@ class AlgebraicVyYacine(ScalarLoopObserver):
         if o["differentiator_order"] not in LAMBDAS:
             raise InputError(f"option differentiator_order = {o['differentiator_order']!r}: needs one of "
                              f"{sorted(LAMBDAS)}", field=f"observer {self.name}")
-        self._cg = o["lane_heading_at"] == "cg"
+        # the kernel's constants (roadtruth.observers.algebraic_vy_loop)
+        self._par = np.array([float(o["lookahead_m"]), float(o["camera_timeout_s"]),
+                              float(o["differentiator_settle_s"]), 1.0 if o["lane_heading_at"] == "cg" else 0.0])
+        assert self._par.shape == (loop.N_PAR,)
 
     def _initial_state(self) -> list[float]:
         return [math.nan]
@@ -86,40 +96,36 @@ class AlgebraicVyYacine(ScalarLoopObserver):
     def _reset_extra(self) -> None:
         o = self.options
         k = int(o["differentiator_order"])
-        self.diff_y = LevantDifferentiator(k, float(o["lipschitz_y_lane"]))
-        self.diff_psi = LevantDifferentiator(k, float(o["lipschitz_psi_lane"]))
-        self._t_cam = -math.inf
-        self._t_start = math.inf
-        self._vy = math.nan
+        self._lev = levant_table(k, float(o["lipschitz_y_lane"]), float(o["lipschitz_psi_lane"]))
+        self._ku = np.full(4, math.nan)                          # held (r, v_x, y_L, psi_L)
+        self._ks = np.array([self._t, -math.inf, math.inf, math.nan])   # (t_cur, t_cam, t_start, v_y)
+        self._kdy, self._kdp = np.zeros(k + 3), np.zeros(k + 3)  # the differentiators of y_L, psi_L
+        self._last = np.array([math.nan, math.nan])
+
+    def _compiled(self, t: np.ndarray, Y: np.ndarray) -> np.ndarray:
+        """Advance through ``t`` (n,) [s], ``Y`` (n, 4) in the shared kernel; ``(v_y, beta)`` (n, 2)."""
+        x = np.empty((t.shape[0], 2))
+        loop.algebraic_run(t, Y, self._ku, self._ks, self._kdy, self._kdp, self._lev, self._par, x)
+        if t.shape[0]:
+            self._last = x[-1].copy()
+        self._t = float(self._ks[0])
+        return x
+
+    def step(self, t_s: float, y: np.ndarray) -> StepOutput:
+        """One sample through the compiled kernel (the same code ``run()`` loops in, so the same bits)."""
+        x = self._compiled(np.array([float(t_s)]), np.ascontiguousarray(np.asarray(y, dtype=float).reshape(1, 4)))
+        return StepOutput(x[0])
+
+    def run(self, t: np.ndarray, Y: np.ndarray, x0: Mapping[str, float] | None = None) -> EstimateTrack:
+        """Reset at ``t[0]`` and advance through the whole log in one compiled call (equal to stepping)."""
+        t = np.ascontiguousarray(t, dtype=float)
+        Y = np.ascontiguousarray(np.asarray(Y, dtype=float).reshape(len(t), len(self.inputs)))
+        if len(t):
+            self.reset(float(t[0]), x0)
+        return EstimateTrack(self.name, tuple(self.states), t, self._compiled(t, Y))
 
     def _advance(self, t_s: float, y: list[float]) -> None:
-        self._tick(t_s, y)
-        r, vx, yl, pl = self._u
-        o = self.options
-        if self._fresh[2] and self._fresh[3]:
-            tau = t_s - self._t_cam
-            if tau > o["camera_timeout_s"] or not self.diff_y.initialized:
-                self.diff_y.reset(yl)
-                self.diff_psi.reset(pl)
-                self._t_start = t_s
-            else:
-                self.diff_y.update(yl, tau)
-                self.diff_psi.update(pl, tau)
-            self._t_cam = t_s
-        ready = (t_s - self._t_start >= o["differentiator_settle_s"] and t_s - self._t_cam <= o["camera_timeout_s"]
-                 and vx == vx)
-        if not ready:
-            self._vy = math.nan
-            return
-        dy = self.diff_y.z[1]
-        ls = float(o["lookahead_m"])
-        if self._cg:
-            self._vy = dy - vx * pl - ls * self.diff_psi.z[1]                       # (26) as printed
-        elif r == r:
-            self._vy = (dy - vx * math.sin(pl)) / math.cos(pl) - ls * r             # exact, look-ahead heading
-        else:
-            self._vy = math.nan
+        self.step(t_s, np.array(y, dtype=float))
 
     def _values(self) -> list[float]:
-        vy, vx = self._vy, self._u[1]
-        return [vy, math.atan2(vy, vx) if vy == vy and vx == vx and vx > 0.1 else math.nan]
+        return self._last.tolist()
