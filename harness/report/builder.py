@@ -12,6 +12,7 @@ from importlib.resources import files
 from pathlib import Path
 
 import jinja2
+import orjson
 from markupsafe import Markup
 
 from roadtruth.harness import __version__
@@ -96,10 +97,21 @@ def _environment() -> jinja2.Environment:
         trim_blocks=True,
         lstrip_blocks=True,
     )
+    # ``tojson`` through orjson: the figure data are most of the page, and the standard library's
+    # encoder took longer to write them than the figures took to make (same JSON, except that a
+    # non-finite float is null instead of the invalid ``NaN``).
+    env.policies["json.dumps_function"] = json_text
+    env.policies["json.dumps_kwargs"] = {}
     env.filters["num"] = _format_number
     env.filters["design_label"] = design_label
     env.filters["design_class"] = design_class
     return env
+
+
+def json_text(data: object) -> str:
+    """``data`` as compact JSON text with sorted keys (numpy arrays and numbers included)."""
+    return orjson.dumps(data, option=orjson.OPT_SORT_KEYS | orjson.OPT_NON_STR_KEYS
+                        | orjson.OPT_SERIALIZE_NUMPY).decode("utf-8")
 
 
 def _format_number(v: object, digits: int = 3) -> str:

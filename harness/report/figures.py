@@ -1,9 +1,12 @@
 """Plotly figure specifications as plain dicts (drawn by the plotly.js inlined once in the page).
 
 Building the dicts by hand keeps report generation fast (no plotly Python object validation) and
-lets the page draw each figure only when it scrolls into view. Traces are decimated to about
-``MAX_POINTS`` points with min/max-preserving M4 buckets and rounded to 5 significant digits to keep
-the page light. Angles are shown in degrees; the CSV files stay in SI units.
+lets the page draw each figure only when it scrolls into view. What a figure carries is decided in
+``plot_data``: traces longer than four samples per pixel column are reduced to their per-column
+envelope (every peak, spike and step kept), values are written on a grid finer than the axis can
+show, and arrays are written compactly (an error on the truth's time grid is drawn in the page as
+estimate minus truth). Angles are shown in degrees; the tables stay in SI units, and the metrics
+are computed from the tables at their full rate, never from a figure.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from roadtruth.harness.report.plot_data import ArrayPool, compact_values, envelope_indices, grid_exponent
 from roadtruth.harness.report.rundata import ObserverSeries, observer_series
 from roadtruth.harness.report.styles import (  # noqa: F401 - re-exported: other pages import styles from here
     PALETTE,
@@ -24,10 +28,6 @@ from roadtruth.harness.report.styles import (  # noqa: F401 - re-exported: other
     observer_styles,
     swatch_svg,
 )
-
-#: Points per drawn line at most. Decimation is M4 (min, max, first, last of each of
-#: ``MAX_POINTS / 4`` equal time buckets; Jugel et al., 2014, VLDB), so every peak survives.
-MAX_POINTS = 500
 
 #: Smallest span an axis is focused on, per display unit (so a near-constant truth does not zoom
 #: the axis onto sensor noise).
@@ -67,51 +67,6 @@ def state_label(state: str) -> str:
     return labels.get(state, state)
 
 
-def _round(values: np.ndarray) -> list[float | None]:
-    """Values rounded to 5 significant digits (vectorised), non-finite ones as None (JSON null).
-
-    Dividing or multiplying the rounded integer by an exact power of ten gives the double nearest
-    the 5-digit decimal, so JSON shows e.g. ``0.12345``, not ``0.12345000000000001``.
-    """
-    v = np.asarray(values, dtype=float)
-    finite = np.isfinite(v) & (v != 0)
-    mag = np.zeros(v.shape, dtype=np.int64)
-    mag[finite] = np.floor(np.log10(np.abs(v[finite]))).astype(np.int64)
-    k = 4 - mag
-    out = np.where(finite, v, 0.0)
-    small, big = finite & (k >= 0), finite & (k < 0)
-    out[small] = np.round(v[small] * 10.0 ** k[small]) / 10.0 ** k[small]
-    out[big] = np.round(v[big] / 10.0 ** (-k[big])) * 10.0 ** (-k[big])
-    out = np.where(np.isfinite(out), out, v)  # extreme exponents (subnormals): keep the value as is
-    lst: list[float | None] = out.tolist()
-    for i in np.flatnonzero(~np.isfinite(v)).tolist():
-        lst[i] = None
-    return lst
-
-
-def decimate(x: np.ndarray, y: np.ndarray, n_out: int = MAX_POINTS) -> np.ndarray:
-    """Indices of at most ~``n_out`` samples of ``y(x)`` that keep the shape a plot shows: in each
-    of ``n_out / 4`` equal-width buckets of ``x`` the first, last, minimum and maximum finite sample
-    (M4 via ``tsdownsample``), plus the first sample of every NaN run so that gaps (dropouts,
-    skipped segments) stay gaps. ``x`` must be non-decreasing; all indices if ``y`` is short."""
-    x = np.ascontiguousarray(x, dtype=float)
-    y = np.ascontiguousarray(y, dtype=float)
-    n = y.size
-    if n <= n_out:
-        return np.arange(n)
-    finite = np.isfinite(y) & np.isfinite(x)
-    fi = np.flatnonzero(finite)
-    keep = [np.flatnonzero(~finite & np.r_[True, finite[:-1]])]  # first NaN of each run
-    if fi.size > n_out:
-        from tsdownsample import M4Downsampler
-
-        n_m4 = max(4, (n_out // 4) * 4)
-        keep.append(fi[M4Downsampler().downsample(x[fi], y[fi], n_out=n_m4)])
-    else:
-        keep.append(fi)
-    return np.unique(np.concatenate(keep)).astype(np.int64)
-
-
 def _event_marks(events: list[dict[str, Any]], t_span: tuple[float, float]) -> tuple[list[dict], list[dict]]:
     """A dotted line per event and a small number above the plot (the full label on hover and in
     the scenario's event list), staggered in two rows where events are close, so labels never
@@ -136,13 +91,24 @@ def _event_marks(events: list[dict[str, Any]], t_span: tuple[float, float]) -> t
     return shapes, notes
 
 
+def _quantiles(v: np.ndarray, qs: Sequence[float]) -> np.ndarray:
+    """``np.quantile(v, qs)`` (its default linear interpolation) of a non-empty finite ``v`` from one
+    sort: the same numbers at a fraction of its per-call cost, which two thousand traces felt."""
+    s = np.sort(v)
+    pos = np.asarray(qs, dtype=float) * (s.size - 1)
+    lo = np.floor(pos).astype(np.int64)
+    hi = np.minimum(lo + 1, s.size - 1)
+    frac = pos - lo
+    return s[lo] + (s[hi] - s[lo]) * frac
+
+
 def focus_range(truth: np.ndarray, estimates: list[np.ndarray], unit: str) -> tuple[list[float], bool]:
     """A y range a person can read: the truth's range, widened to hold the 1-99 % quantiles of each
     estimate but never more than ``FOCUS_SPANS`` truth spans beyond the truth (a start-up interval
     bound of ±100° or one drifting observer does not flatten every other line). Returns the range
     and whether some estimate lies outside it (the page then offers "show all")."""
     tv = truth[np.isfinite(truth)]
-    qs = [np.quantile(e[np.isfinite(e)], FOCUS_QUANTILES) for e in estimates if np.isfinite(e).any()]
+    qs = [_quantiles(e[np.isfinite(e)], FOCUS_QUANTILES) for e in estimates if np.isfinite(e).any()]
     if tv.size:
         lo, hi = float(tv.min()), float(tv.max())
     elif qs:
@@ -161,7 +127,7 @@ def focus_range(truth: np.ndarray, estimates: list[np.ndarray], unit: str) -> tu
 
 def _error_range(errors: list[np.ndarray], truth_span: float, unit: str) -> tuple[list[float], bool]:
     """Symmetric error axis: the largest 99 % quantile of |error|, capped at the focus span."""
-    q = [float(np.quantile(np.abs(e[np.isfinite(e)]), FOCUS_QUANTILES[1])) for e in errors if np.isfinite(e).any()]
+    q = [float(_quantiles(np.abs(e[np.isfinite(e)]), FOCUS_QUANTILES[1:])[0]) for e in errors if np.isfinite(e).any()]
     if not q:
         return [-1.0, 1.0], False
     cap = FOCUS_SPANS * max(truth_span, _MIN_SPAN.get(unit, 0.0), 1e-12)
@@ -182,67 +148,74 @@ def state_figure(
     a roll-over) the plot is shaded: that part is drawn but not scored.
     """
     scale, unit = display_unit(state)
-    traces: list[dict[str, Any]] = []
     if state in truth.columns:
         t_truth = truth["t_s"].to_numpy(float)
         y_truth = truth[state].to_numpy(float)
-        idx = decimate(t_truth, y_truth)
-        traces.append({"type": "scatter", "mode": "lines", "name": "truth", "legendgroup": "truth",
-                       "x": _round(t_truth[idx]), "y": _round(y_truth[idx] * scale),
-                       "line": {"color": TRUTH_COLOUR, "width": 2.2}, "xaxis": "x", "yaxis": "y"})
     else:
         t_truth = y_truth = np.empty(0)
     series = observer_series(estimates, state) if isinstance(estimates, pd.DataFrame) else estimates
-    values, errors, t_ends = [], [], [float(t_truth[-1])] if t_truth.size else []
+    # Errors at every estimate sample against the truth held at that time (full rate: the ranges
+    # and the drawn envelope come from all samples).
+    errors: list[np.ndarray] = []
     for one in series:
-        obs, t, v, lo, hi = one.observer, one.t_s, one.value, one.lo, one.hi
-        style = styles.get(obs) or observer_style(obs)
-        if t.size:
-            t_ends.append(float(t[-1]))
-        values.append(v * scale)
-        if np.isfinite(lo).any() and np.isfinite(hi).any():
-            ilo, ihi = decimate(t, lo), decimate(t, hi)
-            band_x = np.concatenate([t[ihi], t[ilo][::-1]])
-            band_y = np.concatenate([hi[ihi], lo[ilo][::-1]]) * scale
-            traces.append({"type": "scatter", "mode": "lines", "name": f"{obs} bounds",
-                           "legendgroup": str(obs), "showlegend": False, "hoverinfo": "skip",
-                           "x": _round(band_x), "y": _round(band_y), "fill": "toself",
-                           "fillcolor": _alpha(style.colour, 0.13), "line": {"width": 0}, "xaxis": "x", "yaxis": "y"})
         err = np.empty(0)
         if t_truth.size:
-            # Error at every estimate sample against the truth held at that time; the samples kept
-            # are those that hold the extremes of the estimate or of its error.
-            j = np.clip(np.searchsorted(t_truth, t + 1e-9, side="right") - 1, 0, t_truth.size - 1)
-            err = v - y_truth[j]
+            j = np.clip(np.searchsorted(t_truth, one.t_s + 1e-9, side="right") - 1, 0, t_truth.size - 1)
+            err = one.value - y_truth[j]
             if state.endswith("_rad"):
                 err = np.pi - np.mod(np.pi - err, 2 * np.pi)
             err = err * scale
-            errors.append(err)
-            idx = np.union1d(decimate(t, v, MAX_POINTS // 2), decimate(t, err, MAX_POINTS // 2))
-        else:
-            idx = decimate(t, v)
-        traces.append({"type": "scatter", "mode": "lines", "name": str(obs), "legendgroup": str(obs),
-                       "x": _round(t[idx]), "y": _round(v[idx] * scale),
-                       "line": style.plotly_line(1.4), "xaxis": "x", "yaxis": "y"})
-        if err.size:
-            traces.append({"type": "scatter", "mode": "lines", "name": f"{obs} error",
-                           "legendgroup": str(obs), "showlegend": False,
-                           "x": _round(t[idx]), "y": _round(err[idx]),
-                           "line": style.plotly_line(1.1), "xaxis": "x", "yaxis": "y2"})
+        errors.append(err)
+    t_ends = ([float(t_truth[-1])] if t_truth.size else []) + [float(o.t_s[-1]) for o in series if o.t_s.size]
     t0 = float(t_truth[0]) if t_truth.size else 0.0
     t_span = (t0, max(t_ends) if t_ends else t0 + 1.0)
-    shapes, notes = _event_marks(events, t_span)
+    values = [o.value * scale for o in series]
     y_range, clipped = focus_range(y_truth * scale, values, unit)
     tv = y_truth[np.isfinite(y_truth)] * scale
-    e_range, e_clipped = _error_range(errors, float(tv.max() - tv.min()) if tv.size else 0.0, unit)
-    if scored_until_s is not None and math.isfinite(scored_until_s) and scored_until_s < t_span[1]:
-        shapes.append({"type": "rect", "xref": "x", "yref": "paper", "x0": scored_until_s, "x1": t_span[1],
-                       "y0": 0, "y1": 1, "fillcolor": "rgba(120,120,120,0.16)", "line": {"width": 0},
-                       "layer": "below"})
-        notes.append({"x": scored_until_s, "xref": "x", "y": 0.99, "yref": "paper", "xanchor": "left",
-                      "yanchor": "top", "showarrow": False, "font": {"size": 10, "color": "#475467"},
-                      "text": "not scored" + (f" ({unscored_reason})" if unscored_reason else ""),
-                      "hovertext": f"from {scored_until_s:g} s on: drawn, not scored"})
+    e_range, e_clipped = _error_range([e for e in errors if e.size], float(tv.max() - tv.min()) if tv.size else 0.0, unit)
+    # One value grid for the truth, the estimates and their bounds, fine enough for both panels, so
+    # that an estimate minus the truth is exact on it; explicit errors get their own panel's grid.
+    every = np.concatenate([tv, *values, *(o.lo * scale for o in series), *(o.hi * scale for o in series)])
+    exp = grid_exponent(min(y_range[1] - y_range[0], e_range[1] - e_range[0]), every)
+    exp_err = grid_exponent(e_range[1] - e_range[0])
+    pool = ArrayPool()
+    traces: list[dict[str, Any]] = []
+    truth_whole = False
+    if t_truth.size:
+        idx = envelope_indices(t_truth, y_truth)
+        truth_whole = idx.size == t_truth.size
+        traces.append({"mode": "lines", "name": "truth", "legendgroup": "truth", **pool.times(t_truth, idx),
+                       "y": compact_values(y_truth[idx] * scale, exp), "line": {"color": TRUTH_COLOUR, "width": 2.2}})
+    wrap = 360.0 if state.endswith("_rad") else None
+    for one, err in zip(series, errors, strict=True):
+        obs, t, v, lo, hi = one.observer, one.t_s, one.value, one.lo, one.hi
+        style = styles.get(obs) or observer_style(obs)
+        if np.isfinite(lo).any() and np.isfinite(hi).any():
+            # The band as two lines, the upper one filled down to the lower ("tonexty": the trace
+            # before it on the same axes), each its own envelope.
+            ilo, ihi = envelope_indices(t, lo), envelope_indices(t, hi)
+            common = {"legendgroup": str(obs), "showlegend": False, "hoverinfo": "skip", "mode": "lines",
+                      "line": {"width": 0}}
+            traces.append({**common, "name": f"{obs} lower bound", **pool.times(t, ilo),
+                           "y": compact_values(lo[ilo] * scale, exp)})
+            traces.append({**common, "name": f"{obs} bounds", **pool.times(t, ihi),
+                           "y": compact_values(hi[ihi] * scale, exp), "fill": "tonexty",
+                           "fillcolor": _alpha(style.colour, 0.13)})
+        idx = envelope_indices(t, v)
+        traces.append({"mode": "lines", "name": str(obs), "legendgroup": str(obs), **pool.times(t, idx),
+                       "y": compact_values(v[idx] * scale, exp), "line": _line(style, 1.4)})
+        if not err.size:
+            continue
+        error = {"mode": "lines", "name": f"{obs} error", "legendgroup": str(obs), "showlegend": False,
+                 "line": _line(style, 1.1), "yaxis": "y2"}
+        if truth_whole and idx.size == t.size and np.array_equal(t, t_truth):
+            # Same time grid as the truth and nothing left out: the page draws estimate − truth.
+            value_trace = len(traces) - 1
+            traces.append({**error, **pool.times(t), "y": {"minus": [value_trace, 0], **({"wrap": wrap} if wrap else {})}})
+        else:
+            ie = envelope_indices(t, err)
+            traces.append({**error, **pool.times(t, ie), "y": compact_values(err[ie], exp_err)})
+    shapes, notes = _event_marks(events, t_span)
     label = state_label(state)
     layout = {
         "height": 450, "margin": {"l": 56, "r": 8, "t": 58, "b": 40},
@@ -266,7 +239,15 @@ def state_figure(
                  "args": [{"yaxis.autorange": True, "yaxis2.autorange": True}]},
             ]}],
     }
-    return {"data": traces, "layout": layout, "meta": {"clipped": bool(clipped or e_clipped)}}
+    return {"data": traces, "layout": layout, "arrays": pool.arrays, "meta": {"clipped": bool(clipped or e_clipped)}}
+
+
+def _line(style: LineStyle, width: float) -> dict[str, Any]:
+    """A plotly line of ``style`` (solid, plotly's default dash, is left out)."""
+    line = style.plotly_line(width)
+    if line.get("dash") == "solid":
+        del line["dash"]
+    return line
 
 
 def mu_colour(mu: float) -> str:
@@ -297,9 +278,9 @@ def trajectory_figure(truth: pd.DataFrame, info: dict[str, Any], events: list[di
     road = info.get("road") or {}
     if road.get("x_m"):
         rx, ry = np.asarray(road["x_m"], float), np.asarray(road["y_m"], float)
-        traces.append({"type": "scatter", "mode": "lines", "name": "road centre", "x": _round(rx),
-                       "y": _round(ry), "line": {"color": "#999", "width": 1, "dash": "dash"},
-                       "hoverinfo": "skip"})
+        road_trace = {"mode": "lines", "name": "road centre", "x": rx, "y": ry,
+                      "line": {"color": "#999", "width": 1, "dash": "dash"}, "hoverinfo": "skip"}
+        traces.append(road_trace)
         pts.append(np.column_stack([rx, ry]))
     if pts:
         allp = np.vstack(pts)
@@ -311,6 +292,10 @@ def trajectory_figure(truth: pd.DataFrame, info: dict[str, Any], events: list[di
     lo, hi = allp.min(axis=0), allp.max(axis=0)
     pad = 0.08 * max(float(np.max(hi - lo)), 10.0)
     lo, hi = lo - pad, hi + pad
+    # Positions on a grid of a ten-thousandth of the wider axis span (plenty for a 360 px plot).
+    exp = grid_exponent(float(np.max(hi - lo)), allp)
+    for tr in traces:
+        tr["x"], tr["y"] = compact_values(tr["x"], exp), compact_values(tr["y"], exp)
     for p in info.get("friction", {}).get("patches", []):
         verts = np.asarray(p.get("vertices", []), float)
         if verts.ndim != 2 or len(verts) < 3:
@@ -323,20 +308,22 @@ def trajectory_figure(truth: pd.DataFrame, info: dict[str, Any], events: list[di
         when = ""
         if _is_finite(p.get("t_start_s")) and float(p["t_start_s"]) > 0 or _is_finite(p.get("t_end_s")):
             when = f" t∈[{_fmt(p.get('t_start_s'))}, {_fmt(p.get('t_end_s'))}] s"
-        traces.append({"type": "scatter", "mode": "text", "showlegend": False, "hoverinfo": "text",
+        traces.append({"mode": "text", "showlegend": False, "hoverinfo": "text",
                        "x": [float(np.clip(c[0], lo[0], hi[0]))], "y": [float(np.clip(c[1], lo[1], hi[1]))],
                        "text": [f"{p.get('surface') or p.get('name', '')} μ={float(p.get('mu', 1.0)):.2f}{when}"],
                        "textfont": {"size": 11, "color": "#234"}})
     if x.size:
-        idx = np.unique(np.concatenate([decimate(x, x), decimate(x, y)]))
-        traces.append({"type": "scatter", "mode": "lines", "name": "CG path", "x": _round(x[idx]),
-                       "y": _round(y[idx]), "line": {"color": "#c0392b", "width": 2.5}})
+        # A path is no function of x: its envelope is taken along the samples, in both coordinates.
+        i = np.arange(x.size, dtype=float)
+        idx = np.union1d(envelope_indices(i, x), envelope_indices(i, y))
+        traces.append({"mode": "lines", "name": "CG path", "x": compact_values(x[idx], exp),
+                       "y": compact_values(y[idx], exp), "line": {"color": "#c0392b", "width": 2.5}})
         t = truth["t_s"].to_numpy(float)
         ev_t = [float(e["t_s"]) for e in events]
         if ev_t:
             j = np.clip(np.searchsorted(t, ev_t), 0, t.size - 1)
-            traces.append({"type": "scatter", "mode": "markers+text", "name": "events",
-                           "x": _round(x[j]), "y": _round(y[j]),
+            traces.append({"mode": "markers+text", "name": "events",
+                           "x": compact_values(x[j], exp), "y": compact_values(y[j], exp),
                            # Numbers as in the time plots and the event list; full labels on hover.
                            "text": [str(k) for k in range(1, len(events) + 1)],
                            "hovertext": [f"{float(e['t_s']):g} s — {e.get('label', '')}" for e in events],

@@ -48,6 +48,10 @@ RESERVED_FOLDERS: tuple[str, ...] = ("frames", "videos")
 MAX_FOLDER_NAME = 100
 #: Largest JSON file of a run folder read [bytes] (a run.json of a 144-case sweep is ~1 MB).
 MAX_JSON_BYTES = 64_000_000
+#: A wide CSV estimates table up to this size [bytes] is parsed once for all of a scenario's figures
+#: (its numbers take about as much memory as the file); a larger one (a long log) one state's
+#: columns at a time, as a CSV parser reads the whole file for any of its columns.
+WHOLE_CSV_BYTES = 32_000_000
 
 
 def inside_folder(root: Path, path: Path, *, source: str | None = None) -> Path:
@@ -210,8 +214,8 @@ class ScenarioFiles:
             if col not in frame.columns:
                 has = ", ".join(map(str, frame.columns[:12]))
                 raise RunFolderError(f"missing column (has: {has})", source=str(path), field=col)
-        for col in frame.columns:
-            if col in text or frame[col].dtype.kind in "biuf":
+        for col, dtype in frame.dtypes.items():
+            if col in text or dtype.kind in "biuf":
                 continue
             values = pd.to_numeric(frame[col], errors="coerce")
             bad = values.isna() & frame[col].notna()
@@ -251,6 +255,10 @@ class ScenarioFiles:
         path = self._path(found.name) if found is not None else None  # never read outside the folder
         if path is None:
             return None
+        if format_of(path) == "csv":
+            names = _csv_header(path)
+            if names is not None:
+                return names
         try:
             return table_columns(path)
         except pd.errors.EmptyDataError:
@@ -300,7 +308,22 @@ class ScenarioFiles:
             return []
         if self._is_long():
             return observer_series(estimates_long(self._long_table, states=[state], categorical=True), state)
+        if self._whole_csv is not None:
+            return wide_series(self._whole_csv, state)
         return wide_series(self._state_columns(state_columns(header, [state])), state)
+
+    @cached_property
+    def _whole_csv(self) -> dict[str, np.ndarray] | None:
+        """Every column of a wide CSV estimates table of at most ``WHOLE_CSV_BYTES``, parsed once
+        (with ``_table``'s checks), or None for Parquet and larger files."""
+        found = table_path(self.folder, "estimates")
+        path = self._path(found.name) if found is not None else None
+        if path is None or format_of(path) != "csv" or path.stat().st_size > WHOLE_CSV_BYTES:
+            return None
+        frame = self._table("estimates", required=("t_s",))
+        # One conversion of the frame's float block: each column is then a contiguous row of it.
+        rows = np.ascontiguousarray(frame.to_numpy(dtype=float).T)
+        return {str(c): rows[i] for i, c in enumerate(frame.columns)}
 
     def _state_columns(self, columns: list[str]) -> dict[str, np.ndarray]:
         """``columns`` of the wide estimates table as float arrays. Numeric Parquet columns are taken
@@ -327,6 +350,22 @@ class ScenarioFiles:
     @cached_property
     def info(self) -> dict[str, Any]:
         return self._json("scenario.json", {})
+
+
+def _csv_header(path: Path) -> list[str] | None:
+    """The column names of a CSV file from its first line (what ``table_columns`` gives, without
+    setting up pandas' parser), or None when pandas would rename some (empty or repeated names) or
+    the line cannot be read: the caller then asks pandas."""
+    import csv
+
+    try:
+        with open(path, encoding="utf-8-sig", newline="") as f:
+            names = next(csv.reader(f), None)
+    except (OSError, UnicodeDecodeError, csv.Error):
+        return None
+    if not names or any(not n for n in names) or len(set(names)) != len(names):
+        return None
+    return names
 
 
 @dataclass(frozen=True)
@@ -447,11 +486,21 @@ class RunData:
         scored = set(m.loc[ok, "state"])
         return [s for s in self.states if s in scored]
 
+    @cached_property
+    def row_statuses(self) -> dict[tuple[str, str], list[str]]:
+        """``(scenario, observer)`` -> the statuses of its metrics rows, in file order. One pass over
+        the table: filtering the frame per run cost more than the rest of the page's tables."""
+        m = self.metrics
+        out: dict[tuple[str, str], list[str]] = {}
+        for key in zip(m["scenario"].astype(str).tolist(), m["observer"].astype(str).tolist(),
+                       m["status"].astype(str).tolist(), strict=True):
+            out.setdefault(key[:2], []).append(key[2])
+        return out
+
     def run_status(self, scenario: str, observer: str) -> str:
         """The status of one observer run: ``ok`` if any of its states was scored, else the first
         reason (a state without truth is a state-level skip, not a failed run)."""
-        m = self.metrics
-        rows = m[(m["scenario"] == scenario) & (m["observer"] == observer)]["status"].astype(str).tolist()
+        rows = self.row_statuses.get((scenario, observer), [])
         runs = self.run.get("observer_runs", {})
         r = runs.get(scenario, {}).get(observer) if isinstance(runs, dict) else None
         if isinstance(r, dict) and r.get("status"):

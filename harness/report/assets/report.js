@@ -112,11 +112,60 @@
     });
   }
 
+  // Compact figure arrays (harness/report/plot_data.py says the forms): integer steps on a decimal
+  // or time grid, shared arrays, and an error drawn as estimate minus truth.
+  var VARINT = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789-_";
+
+  function readVarints(text) {  // zigzag integers, 5 bits a character, 32 = more follows
+    var out = [], value = 0, scale = 1, i, c;
+    for (i = 0; i < text.length; i++) {
+      c = VARINT.indexOf(text.charAt(i));
+      value += (c & 31) * scale;  // arithmetic, not bit operations: values reach 2^51
+      if (c & 32) { scale *= 32; continue; }
+      out.push(value % 2 ? -(value + 1) / 2 : value / 2);
+      value = 0; scale = 1;
+    }
+    return out;
+  }
+
+  function expandArray(a, arrays) {
+    if (a && a.ref !== undefined) a = arrays[a.ref];
+    if (!a || Array.isArray(a) || a.dk === undefined) return a;
+    if (a._values) return a._values;  // a shared array is expanded once
+    var dk = readVarints(a.dk), n = dk.length, out = new Array(n), k = 0, i;
+    var p = Math.pow(10, Math.abs(a.exp || 0)), off = a.offset || 0;
+    for (i = 0; i < n; i++) {
+      k += dk[i];
+      out[i] = a.step !== undefined ? off + k * a.step : (a.exp < 0 ? k / p : k * p);
+    }
+    (a.nan || []).forEach(function (g) { for (i = g[0]; i < g[0] + g[1]; i++) out[i] = null; });
+    a._values = out;
+    return out;
+  }
+
+  function expandFigure(spec) {
+    var arrays = spec.arrays || [];
+    spec.data.forEach(function (t) {
+      if ("x" in t) t.x = expandArray(t.x, arrays);
+      if ("y" in t && !(t.y && t.y.minus)) t.y = expandArray(t.y, arrays);
+    });
+    spec.data.forEach(function (t) {
+      if (!(t.y && t.y.minus)) return;
+      var a = spec.data[t.y.minus[0]].y, b = spec.data[t.y.minus[1]].y, w = t.y.wrap;
+      t.y = a.map(function (v, i) {
+        if (v === null || b[i] === null || b[i] === undefined) return null;
+        var d = v - b[i];
+        return w ? w / 2 - (((w / 2 - d) % w) + w) % w : d;
+      });
+    });
+    return spec;
+  }
+
   function drawPlot(div) {
     if (div.dataset.drawn) return;
     var node = document.getElementById(div.dataset.spec);
     if (!node || typeof Plotly === "undefined") return;
-    var spec = JSON.parse(node.textContent);
+    var spec = expandFigure(JSON.parse(node.textContent));
     div.innerHTML = "";
     // On a narrow screen the horizontal legend wraps onto many rows: give the figure the height
     // those rows take, so the plot area itself keeps its size.

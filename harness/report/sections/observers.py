@@ -32,9 +32,9 @@ class ObserversSection(Section):
             statuses = []
             reasons = []
             for scen in run.scenario_names:
-                rows_here = om[om["scenario"] == scen]
-                if not rows_here.empty:
-                    status = run_verdict(run.run_status(scen, obs), rows_here["status"].astype(str))
+                rows_here = run.row_statuses.get((scen, obs))
+                if rows_here:
+                    status = run_verdict(run.run_status(scen, obs), rows_here)
                     statuses.append({"scenario": scen, "status": status, "kind": status_kind(status),
                                      "label": status_label(status)})
                 r = runs.get(scen, {}).get(obs, {})

@@ -10,6 +10,7 @@ from typing import Any
 import pandas as pd
 
 from roadtruth.harness.report.figures import TRUTH_EVENTS, state_figure, trajectory_figure
+from roadtruth.harness.report.plot_data import PIXEL_COLUMNS, STEPS_PER_SPAN
 from roadtruth.harness.report.rundata import RunData
 from roadtruth.harness.report.sections.base import Section
 
@@ -107,4 +108,4 @@ class ScenariosSection(Section):
                 "video": video,
                 "render_reason": render.get("reason"),
             })
-        return {"scenarios": items}
+        return {"scenarios": items, "plot_columns": PIXEL_COLUMNS, "plot_steps": STEPS_PER_SPAN}

@@ -23,10 +23,9 @@ from roadtruth.harness.report.verdicts import (
 
 def observer_run_statuses(run: RunData) -> list[dict[str, str]]:
     """One entry per (scenario, observer) run: its status as counted, kind and short label."""
-    m = run.metrics
     out = []
-    for (scen, obs), g in m.groupby(["scenario", "observer"], sort=False):
-        status = run_verdict(run.run_status(str(scen), str(obs)), g["status"].astype(str))
+    for (scen, obs), rows in run.row_statuses.items():
+        status = run_verdict(run.run_status(scen, obs), rows)
         out.append({"scenario": str(scen), "observer": str(obs), "status": status,
                     "kind": status_kind(status), "label": status_label(status)})
     return out
