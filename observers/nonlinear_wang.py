@@ -33,104 +33,52 @@ Variants (design in :mod:`roadtruth.observers.nonlinear_wang_design`):
 
 As in :mod:`roadtruth.observers.lpv_wang` the state ``z1 = alpha_f - delta`` removes the steering rate, and
 ``v_y`` / ``beta`` are derived from the CONTRACT slip definitions.
+
+*Compiled.* ``step()`` and ``run()`` call the same numba kernel (:mod:`roadtruth.observers.nonlinear_wang_loop`),
+with one sample or the whole log, so they agree bit for bit; the five variants share that one kernel
+(their gains and the basis of ``L2`` are entries of its parameter vector).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
-from roadtruth.harness.truth.tire import jit
-from roadtruth.observers.base import ScalarLoopObserver
+from roadtruth.observers.base import EstimateTrack, ScalarLoopObserver, StepOutput
 from roadtruth.observers.bicycle import slip_model_terms
 from roadtruth.observers.lmi import DesignResult, usable_gains
+from roadtruth.observers.nonlinear_wang_loop import (
+    N_PAR,
+    P_A11,
+    P_A22,
+    P_AHI,
+    P_ALO,
+    P_B11,
+    P_B22,
+    P_BASIS2,
+    P_C1F,
+    P_C1R,
+    P_ELL,
+    P_HOLD,
+    P_K1F,
+    P_K1R,
+    P_L1,
+    P_L2,
+    P_LF,
+    P_LR,
+    P_THF,
+    P_THR,
+    P_VHI,
+    P_VLO,
+    P_VMIN,
+    nonlinear_run,
+)
 from roadtruth.observers.registry import register
 
 KMH = 1.0 / 3.6
-#: Index layout of the parameter array of the compiled step.
-(P_C1F, P_C1R, P_THF, P_THR, P_K1F, P_K1R, P_A11, P_A12, P_A21, P_A22, P_B11, P_B12, P_B21, P_B22,
- P_ELL, P_VLO, P_VHI, P_ALO, P_AHI, P_VMIN, P_L1, P_L2, P_BASIS2, N_PAR) = (
-    0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19, 20, 29, 38, 39)
-#: Largest RK4 sub-steps per step (bounds the cost at very low speed).
-MAX_SUBSTEPS = 64
-
-
-@jit
-def brush_nonlinear_part(alpha: float, c1: float, theta: float) -> float:
-    """``F_y(alpha) - c1 alpha`` [N] of (5.63) with saturation beyond ``1/theta``."""
-    s = theta * abs(alpha)
-    if s > 1.0:
-        s = 1.0
-    mu_fz = c1 / (3.0 * theta)
-    fy = mu_fz * (3.0 * s - 3.0 * s * s + s * s * s)
-    return (fy if alpha >= 0.0 else -fy) - c1 * alpha
-
-
-@jit
-def _rhs(z1: float, ar: float, p: np.ndarray, delta: float, r: float, th1: float, th2: float,
-         ytil_off: float, l1a: float, l1b: float, l2a: float, l2b: float, correct: bool) -> tuple[float, float]:
-    af = z1 + delta
-    if correct:
-        yt = ytil_off - (z1 - ar)  # y - C x, with y - delta = ytil_off
-    else:
-        yt = 0.0
-    fa = brush_nonlinear_part(af + l2a * yt, p[P_C1F], p[P_THF])
-    fb = brush_nonlinear_part(ar + l2b * yt, p[P_C1R], p[P_THR])
-    # A x + B_f f + (L1 - B_f K1 L2) y~ + Phi (without delta', absorbed by z1)
-    lin_a = th1 * (p[P_A11] * af + p[P_A12] * ar) - th2 * af
-    lin_b = th1 * (p[P_A21] * af + p[P_A22] * ar) - th2 * ar
-    nf_a = th1 * (p[P_B11] * fa + p[P_B12] * fb)
-    nf_b = th1 * (p[P_B21] * fa + p[P_B22] * fb)
-    kl_a = p[P_K1F] * l2a * yt
-    kl_b = p[P_K1R] * l2b * yt
-    bk_a = th1 * (p[P_B11] * kl_a + p[P_B12] * kl_b)
-    bk_b = th1 * (p[P_B21] * kl_a + p[P_B22] * kl_b)
-    da = lin_a + nf_a + (l1a * yt - bk_a) + th2 * delta + r
-    db = lin_b + nf_b + (l1b * yt - bk_b) + r
-    return da, db
-
-
-@jit
-def observer_step(z: np.ndarray, p: np.ndarray, delta: float, r: float, vx: float, ax: float, h: float,
-                  correct: bool) -> None:
-    """Advance ``z = (alpha_f - delta, alpha_r)`` by ``h`` [s] with held inputs (RK4, sub-stepped)."""
-    vc = min(max(vx, p[P_VLO]), p[P_VHI])
-    ac = min(max(ax, p[P_ALO]), p[P_AHI])
-    th1 = 1.0 / vc
-    th2 = ac * th1
-    l1a = p[P_L1] + th1 * p[P_L1 + 2] + th2 * p[P_L1 + 4]
-    l1b = p[P_L1 + 1] + th1 * p[P_L1 + 3] + th2 * p[P_L1 + 5]
-    if p[P_BASIS2] > 0.5:      # L2 affine in (v_x, a_x)
-        b1, b2 = vc, ac
-    else:                      # L2 affine in lambda
-        b1, b2 = th1, th2
-    l2a = p[P_L2] + b1 * p[P_L2 + 2] + b2 * p[P_L2 + 4]
-    l2b = p[P_L2 + 1] + b1 * p[P_L2 + 3] + b2 * p[P_L2 + 5]
-    vm = vx if vx > p[P_VMIN] else p[P_VMIN]
-    yoff = -p[P_ELL] * r / vm
-    # stiffness bound of the right-hand side [1/s], for the sub-step count (h * rate <= 0.5)
-    c1m = max(p[P_C1F], p[P_C1R])
-    bnorm = max(abs(p[P_B11]) + abs(p[P_B12]), abs(p[P_B21]) + abs(p[P_B22]))
-    rate = (th1 * c1m * bnorm * (1.0 + 2.0 * (abs(l2a) + abs(l2b))) + abs(th2)
-            + (2.0 * (abs(l1a) + abs(l1b)) if correct else 0.0))
-    n = int(math.ceil(h * rate / 0.5))
-    n = 1 if n < 1 else (MAX_SUBSTEPS if n > MAX_SUBSTEPS else n)
-    dt = h / n
-    a, b = z[0], z[1]
-    for _ in range(n):
-        k1a, k1b = _rhs(a, b, p, delta, r, th1, th2, yoff, l1a, l1b, l2a, l2b, correct)
-        k2a, k2b = _rhs(a + 0.5 * dt * k1a, b + 0.5 * dt * k1b, p, delta, r, th1, th2, yoff, l1a, l1b, l2a, l2b,
-                        correct)
-        k3a, k3b = _rhs(a + 0.5 * dt * k2a, b + 0.5 * dt * k2b, p, delta, r, th1, th2, yoff, l1a, l1b, l2a, l2b,
-                        correct)
-        k4a, k4b = _rhs(a + dt * k3a, b + dt * k3b, p, delta, r, th1, th2, yoff, l1a, l1b, l2a, l2b, correct)
-        a += dt * (k1a + 2.0 * k2a + 2.0 * k3a + k4a) / 6.0
-        b += dt * (k1b + 2.0 * k2b + 2.0 * k3b + k4b) / 6.0
-    z[0] = a
-    z[1] = b
-
 
 _COMMON: dict[str, Any] = {
     "vx_range_mps": (15.0 * KMH, 150.0 * KMH),  # design domain (5.70); v_x is clamped into it
@@ -179,10 +127,11 @@ class NonlinearWang(ScalarLoopObserver):
         p[P_VLO], p[P_VHI], p[P_ALO], p[P_AHI] = lo_v, hi_v, lo_a, hi_a
         p[P_VMIN] = float(self.options["vx_min_output_mps"])
         p[P_BASIS2] = 1.0 if self.variant == "scheduled" else 0.0
+        p[P_LF], p[P_LR] = v.lf_m, v.lr_m
+        p[P_HOLD] = float(self.options["hold_s"])
+        assert p.shape == (N_PAR,)
         self._p = p
-        self._hold = float(self.options["hold_s"])
         self._gains_set = False
-        self._zarr = np.zeros(2)
 
     def _compute_design(self) -> DesignResult:
         from roadtruth.observers.nonlinear_wang_design import design_for
@@ -215,38 +164,40 @@ class NonlinearWang(ScalarLoopObserver):
         return [0.0, 0.0]
 
     def _reset_extra(self) -> None:
-        self._have_delta = False
+        self._ku = np.full(4, math.nan)       # held (delta, r, v_x, a_x)
+        self._ktl = np.full(4, -math.inf)     # their arrival times [s]
+        self._kz = np.array(self._z, dtype=float)
+        self._ks = np.array([self._t, 0.0])   # (t_cur, have_delta)
+        self._last = np.array([self._z[0], self._z[1], 0.0, 0.0])   # before any sample: no v_y, beta
+
+    def _compiled(self, t: np.ndarray, Y: np.ndarray) -> np.ndarray:
+        """Advance through ``t`` (n,) [s], ``Y`` (n, 4) in the shared kernel; the estimates (n, 4)."""
+        if not self._gains_set:
+            self._set_gains()   # a failed design raises here, on the first sample
+        x = np.empty((t.shape[0], 4))
+        nonlinear_run(t, Y, self._ku, self._ktl, self._kz, self._ks, self._p, x)
+        if t.shape[0]:
+            self._last = x[-1].copy()
+        return x
+
+    def step(self, t_s: float, y: np.ndarray) -> StepOutput:
+        """One sample through the compiled kernel (the same code ``run()`` loops in, so the same bits)."""
+        x = self._compiled(np.array([float(t_s)]), np.ascontiguousarray(np.asarray(y, dtype=float).reshape(1, 4)))
+        return StepOutput(x[0])
+
+    def run(self, t: np.ndarray, Y: np.ndarray, x0: Mapping[str, float] | None = None) -> EstimateTrack:
+        """Reset at ``t[0]`` and advance through the whole log in one compiled call (equal to stepping)."""
+        t = np.ascontiguousarray(t, dtype=float)
+        Y = np.ascontiguousarray(np.asarray(Y, dtype=float).reshape(len(t), len(self.inputs)))
+        if len(t):
+            self.reset(float(t[0]), x0)
+        return EstimateTrack(self.name, tuple(self.states), t, self._compiled(t, Y))
 
     def _advance(self, t_s: float, y: list[float]) -> None:
-        h = self._tick(t_s, y)
-        delta, r, vx, ax = self._u
-        if delta != delta:
-            return
-        z = self._z
-        if not self._have_delta:
-            z[0] -= delta
-            self._have_delta = True
-        if h <= 0.0 or r != r or vx != vx or ax != ax:
-            return
-        if not self._gains_set:
-            self._set_gains()
-        tl = self._t_last
-        correct = t_s - min(tl[0], tl[1], tl[2]) <= self._hold
-        za = self._zarr
-        za[0], za[1] = z[0], z[1]
-        observer_step(za, self._p, delta, r, vx, ax, h, correct)
-        z[0], z[1] = float(za[0]), float(za[1])
+        self.step(t_s, np.array(y, dtype=float))
 
     def _values(self) -> list[float]:
-        delta, r, vx, _ = self._u
-        af = self._z[0] + delta if self._have_delta else self._z[0]
-        ar = self._z[1]
-        if not self._have_delta or r != r or vx != vx:
-            return [af, ar, 0.0, 0.0]
-        lf, lr = self.vehicle.lf_m, self.vehicle.lr_m
-        v = vx if vx > self._p[P_VMIN] else float(self._p[P_VMIN])
-        vy = 0.5 * (v * math.tan(delta - af) - lf * r - v * math.tan(ar) + lr * r)
-        return [af, ar, math.atan2(vy, v), vy]
+        return self._last.tolist()
 
 
 @register

@@ -231,3 +231,116 @@ def test_runs_on_mujoco_fishhook_and_mu_step(tmp_path) -> None:
     fresh = rows[rows["observer"] == "nonlinear_wang"]
     assert (fresh["status"] == "ok").all(), fresh[["scenario", "status"]]
     assert (fresh["rmse"] < np.deg2rad(1.0)).all(), fresh[["scenario", "rmse"]]
+
+
+# ---- the compiled kernel shared by step() and run() ------------------------------------------------
+
+ALL = ("nonlinear_wang", "nonlinear_wang_printed", "nonlinear_wang_l2", "nonlinear_wang_arcak",
+       "nonlinear_wang_luenberger")
+
+
+def _hostile_log(vehicle):
+    """The design model's inputs with leading rows without any sample, 20 % random dropouts, 0.6 s
+    without r and v_x (past hold_s: prediction without correction), a speed below the design range
+    (clamped), a repeated and an irregular time stamp."""
+    t, Y, _, _, _ = _design_model(vehicle, T=5.0)
+    Y = Y.copy()
+    gen = np.random.default_rng(3)
+    Y[:3] = np.nan
+    Y[gen.random(Y.shape) < 0.2] = np.nan
+    Y[600:900, 1:3] = np.nan
+    Y[1200:1300, 2] = 2.0
+    t = t.copy()
+    t[150] = t[149]
+    t[1500:] += 0.0041
+    return t, Y
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_run_is_one_compiled_call_and_equals_stepping_bit_for_bit(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """run() advances the whole log in one call of the compiled kernel that step() calls per sample,
+    so the estimates are the same bits through dropouts, an outage past hold_s, a speed outside the
+    design range, a repeated and an irregular time stamp, from the default and from a given initial
+    state; run() leaves the observer where stepping leaves it (the next step agrees)."""
+    import roadtruth.observers.nonlinear_wang as module
+
+    v = load_vehicle("sedan")
+    t, Y = _hostile_log(v)
+    calls: list[int] = []
+    kernel = module.nonlinear_run
+
+    def counted(tt: np.ndarray, *args: object) -> None:
+        calls.append(len(tt))
+        kernel(tt, *args)
+
+    for x0 in (None, {"alpha_f_rad": 0.015, "alpha_r_rad": -0.01}):
+        monkeypatch.setattr(module, "nonlinear_run", counted)
+        calls.clear()
+        obs = create(name, v)
+        tr = obs.run(t, Y, x0)
+        assert calls == [len(t)]   # one compiled call for the whole run
+        monkeypatch.undo()
+        ref = create(name, v)
+        ref.reset(float(t[0]), x0)
+        want = np.array([ref.step(float(t[i]), Y[i]).x for i in range(len(t))])
+        assert tr.x.tobytes() == want.tobytes()
+        assert np.all(np.isfinite(tr.x)) and np.abs(tr.x[:, :2]).max() < 0.5
+        nxt, nref = obs.step(float(t[-1]) + 0.01, Y[-1]), ref.step(float(t[-1]) + 0.01, Y[-1])
+        assert nxt.x.tobytes() == nref.x.tobytes()
+        assert not np.array_equal(nxt.x, tr.x[-1])   # the next step did advance
+
+
+def test_held_inputs_repeated_time_stamp_and_first_steering_sample() -> None:
+    """Before the first steering sample the state is x0 and v_y, beta are 0; a row without samples
+    at a repeated time stamp changes nothing; the same row a step later predicts (moves the state);
+    v_y is the mean of the two CONTRACT slip definitions at the held inputs."""
+    v = load_vehicle("sedan")
+    t, Y, _, _, _ = _design_model(v, T=1.0)
+    Y = Y.copy()
+    Y[:5, 0] = np.nan                     # no steering yet
+    Y[60] = np.nan
+    t = t.copy()
+    t[60] = t[59]                          # repeated stamp, no new sample
+    Y[61] = np.nan                         # no new sample, but time advances
+    x0 = {"alpha_f_rad": 0.01, "alpha_r_rad": -0.005}
+    x = create("nonlinear_wang", v).run(t, Y, x0).x
+    np.testing.assert_array_equal(x[:5], np.tile([0.01, -0.005, 0.0, 0.0], (5, 1)))
+    assert x[60].tobytes() == x[59].tobytes()
+    assert np.all(x[61, :2] != x[60, :2])
+    d, r, vx = Y[59, :3]
+    af, ar = x[59, :2]
+    vy = 0.5 * (vx * np.tan(d - af) - v.lf_m * r + v.lr_m * r - vx * np.tan(ar))
+    assert x[59, 3] == pytest.approx(vy, rel=1e-12) and x[59, 2] == pytest.approx(np.arctan2(vy, vx), rel=1e-12)
+
+
+def test_stale_inputs_predict_on_the_open_loop_model() -> None:
+    """With r and v_x older than hold_s every variant predicts without correction: the nonlinear slip
+    model (5.37) from x0 with the held r, v_x (solve_ivp, independent), whatever its gains; with fresh
+    inputs the same log is corrected away from it."""
+    v = load_vehicle("sedan")
+    A1, Bf0 = slip_model_terms(v)
+    c1, theta, _ = _tire(v)
+    t, Y, _, _, _ = _design_model(v, T=1.0)
+    Y = Y.copy()
+    Y[1:, 1:3] = np.nan                    # r and v_x only at t = 0: held, stale after hold_s
+    x0 = [0.015, -0.01]
+    r, vx = Y[0, 1], min(max(Y[0, 2], 15 / 3.6), 150 / 3.6)
+    z = np.array([x0[0] - Y[0, 0], x0[1]])
+    ref = [np.array(x0)]
+    for k in range(1, len(t)):
+        d, a = Y[k, 0], min(max(Y[k, 3], -8.0), 8.0)
+        l1, l2 = 1 / vx, a / vx
+
+        def rhs(s, zz, d=d, l1=l1, l2=l2):
+            xh = np.array([zz[0] + d, zz[1]])
+            return (l1 * A1 - l2 * np.eye(2)) @ xh + l1 * Bf0 @ _f(xh, c1, theta) + np.array([l2 * d + r, r])
+
+        z = solve_ivp(rhs, (t[k - 1], t[k]), z, rtol=1e-11, atol=1e-13).y[:, -1]
+        ref.append(np.array([z[0] + d, z[1]]))
+    ref = np.array(ref)
+    init = {"alpha_f_rad": x0[0], "alpha_r_rad": x0[1]}
+    for name in ("nonlinear_wang", "nonlinear_wang_luenberger"):
+        stale = create(name, v, hold_s=1e-6).run(t, Y, init).x[:, :2]
+        assert np.abs(stale - ref).max() < 1e-7, name
+        fresh = create(name, v).run(t, Y, init).x[:, :2]   # corrected during the first 0.1 s
+        assert np.abs(fresh - ref).max() > 5e-5, name   # >500x the stale difference
