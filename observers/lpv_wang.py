@@ -24,16 +24,24 @@ already satisfies the bare feasibility LMI), ``lpv_wang_hinf`` (robust H-infinit
 16 vertices of Lemma 10), and the dissertation's printed gains ``lpv_wang_printed`` /
 ``lpv_wang_hinf_printed``, which go through the same certification. Design code: ``lpv_wang_design``. The robust H2 and
 unstructured observers of sec. 3.2.3 are in :mod:`roadtruth.observers.lpv_wang_robust`.
+
+*Compiled.* ``step()`` and ``run()`` of every variant (these and the robust ones) call the same numba
+kernel (:mod:`roadtruth.observers.lpv_wang_loop`), with one sample or the whole log, so they agree bit
+for bit.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
-from roadtruth.observers.base import ScalarLoopObserver
-from roadtruth.observers.bicycle import expm2_zoh, slip_model_terms
+import numpy as np
+
+from roadtruth.observers.base import EstimateTrack, ScalarLoopObserver, StepOutput
+from roadtruth.observers.bicycle import slip_model_terms
 from roadtruth.observers.lmi import DesignResult, usable_gains
+from roadtruth.observers.lpv_wang_loop import LUENBERGER, lpv_run, parameters, set_gains
 from roadtruth.observers.registry import register
 
 KMH = 1.0 / 3.6
@@ -71,6 +79,7 @@ class LPVWang(ScalarLoopObserver):
     inputs = ("delta_rad", "yaw_rate_radps", "vx_mps", "ax_mps2")
     states = ("alpha_f_rad", "alpha_r_rad", "beta_rad", "vy_mps")
     variant = "nominal"
+    structure = LUENBERGER   # the kernel's observer form (lpv_wang_loop)
     default_options = {**_COMMON, "decay_rate_radps": None, "decay_fraction": 0.9, "max_gain_per_s": 50.0}
 
     def _setup(self) -> None:
@@ -88,6 +97,10 @@ class LPVWang(ScalarLoopObserver):
         self._vmin = float(self.options["vx_min_output_mps"])
         self._eps1, self._eps2 = scheduling_error(self.options["scheduling_error"], f"observer {self.name}")
         self._L: tuple[float, ...] | None = None
+        # the kernel's constants (roadtruth.observers.lpv_wang_loop); gains filled in when first needed
+        self._par = parameters(self.structure, self._A1, self._lf, self._lr, (self._vlo, self._vhi),
+                               (self._alo, self._ahi), self._hold, self._vmin, (self._eps1, self._eps2))
+        self._par_has_gains = False
 
     def _compute_design(self) -> DesignResult:
         from roadtruth.observers.lpv_wang_design import design_for
@@ -104,60 +117,42 @@ class LPVWang(ScalarLoopObserver):
         return [0.0, 0.0]
 
     def _reset_extra(self) -> None:
-        self._have_delta = False
+        self._ku = np.full(4, math.nan)       # held (delta, r, v_x, a_x)
+        self._ktl = np.full(4, -math.inf)     # their arrival times [s]
+        self._kz = np.array(self._z, dtype=float)
+        self._ks = np.array([self._t, 0.0])   # (t_cur, have_delta)
+        self._last = np.array([self._kz[0], self._kz[1], 0.0, 0.0])
+
+    def _compiled(self, t: np.ndarray, Y: np.ndarray) -> np.ndarray:
+        """Advance through ``t`` (n,) [s], ``Y`` (n, 4) in the shared kernel; the estimates (n, 4)."""
+        n = t.shape[0]
+        if n and not self._par_has_gains:
+            set_gains(self._par, self.gains())   # a failed design raises here, on the first sample
+            self._par_has_gains = True
+        x = np.empty((n, 4))
+        lpv_run(t, Y, self._ku, self._ktl, self._kz, self._ks, self._par, x)
+        if n:
+            self._last = x[-1].copy()
+        return x
+
+    def step(self, t_s: float, y: np.ndarray) -> StepOutput:
+        """One sample through the compiled kernel (the same code ``run()`` loops in, so the same bits)."""
+        x = self._compiled(np.array([float(t_s)]), np.ascontiguousarray(np.asarray(y, dtype=float).reshape(1, 4)))
+        return StepOutput(x[0])
+
+    def run(self, t: np.ndarray, Y: np.ndarray, x0: Mapping[str, float] | None = None) -> EstimateTrack:
+        """Reset at ``t[0]`` and advance through the whole log in one compiled call (equal to stepping)."""
+        t = np.ascontiguousarray(t, dtype=float)
+        Y = np.ascontiguousarray(np.asarray(Y, dtype=float).reshape(len(t), len(self.inputs)))
+        if len(t):
+            self.reset(float(t[0]), x0)
+        return EstimateTrack(self.name, tuple(self.states), t, self._compiled(t, Y))
 
     def _advance(self, t_s: float, y: list[float]) -> None:
-        h = self._tick(t_s, y)
-        delta, r, vx, ax = self._u
-        if delta != delta:
-            return
-        z = self._z
-        if not self._have_delta:
-            z[0] -= delta
-            self._have_delta = True
-        if h <= 0.0 or r != r or vx != vx or ax != ax:
-            return
-        l0a, l0b, l1a, l1b, l2a, l2b = self._L if self._L is not None else self.gains()
-        A = self._A1
-        vc, ac = self._scheduling(vx, ax)
-        th1 = 1.0 / vc
-        th2 = ac * th1
-        a11, a12, a21, a22 = th1 * A[0] - th2, th1 * A[1], th1 * A[2], th1 * A[3] - th2
-        g1 = th1 * A[0] * delta + r
-        g2 = th1 * A[2] * delta + r
-        tl = self._t_last
-        if t_s - min(tl[0], tl[1], tl[2]) <= self._hold:
-            yp = -(self._lf + self._lr) * r / (vx if vx > self._vmin else self._vmin)  # y - delta
-            la = l0a + th1 * l1a + th2 * l2a
-            lb = l0b + th1 * l1b + th2 * l2b
-            a11 -= la
-            a12 += la
-            a21 -= lb
-            a22 += lb
-            g1 += la * yp
-            g2 += lb * yp
-        E, G = expm2_zoh(a11, a12, a21, a22, h)
-        z0, z1 = z
-        self._z = [E[0] * z0 + E[1] * z1 + G[0] * g1 + G[1] * g2, E[2] * z0 + E[3] * z1 + G[2] * g1 + G[3] * g2]
-
-    def _scheduling(self, vx: float, ax: float) -> tuple[float, float]:
-        """Scheduling ``(v_m, a_m)`` [m/s, m/s^2]: the measured values times ``(1 + eps)``, clamped
-        into the design domain (the polytope's guarantees hold only inside it)."""
-        vx = vx * (1.0 + self._eps1)
-        ax = ax * (1.0 + self._eps2)
-        vc = self._vlo if vx < self._vlo else (self._vhi if vx > self._vhi else vx)
-        ac = self._alo if ax < self._alo else (self._ahi if ax > self._ahi else ax)
-        return vc, ac
+        self.step(t_s, np.array(y, dtype=float))
 
     def _values(self) -> list[float]:
-        delta, r, vx, _ = self._u
-        af = self._z[0] + delta if self._have_delta else self._z[0]
-        ar = self._z[1]
-        if not self._have_delta or r != r or vx != vx:
-            return [af, ar, 0.0, 0.0]
-        v = vx if vx > self._vmin else self._vmin
-        vy = 0.5 * (v * math.tan(delta - af) - self._lf * r - v * math.tan(ar) + self._lr * r)
-        return [af, ar, math.atan2(vy, v), vy]
+        return self._last.tolist()
 
 
 @register

@@ -23,16 +23,18 @@ experiment). Designs on the 16 vertices of Lemma 10 in :mod:`roadtruth.observers
 
 Without fresh ``delta, r, v_x`` for ``hold_s`` the observers predict with the plant model at
 ``theta_m`` (``L = 0``, i.e. ``A_o = A``, ``B_ou = B``, ``B_oy = 0``). Discretisation: exact ZOH per
-step (closed form), so the stiff unstructured matrices (eigenvalues to -6400 1/s) are safe.
+step (closed form), so the stiff unstructured matrices (eigenvalues to -6400 1/s) are safe. The
+per-step update is the compiled kernel of the Luenberger variants
+(:mod:`roadtruth.observers.lpv_wang_loop`, unstructured form).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from roadtruth.observers.bicycle import expm2_zoh
 from roadtruth.observers.lmi import DesignResult, usable_gains
 from roadtruth.observers.lpv_wang import _COMMON, LPVWang
+from roadtruth.observers.lpv_wang_loop import UNSTRUCTURED
 from roadtruth.observers.registry import register
 
 _ROBUST: dict[str, Any] = {**_COMMON, "eps1_range": (-0.1, 0.1), "eps2_range": (-0.2, 0.2)}
@@ -74,6 +76,7 @@ class LPVWangUnstructuredHinf(_RobustDesign):
     name = "lpv_wang_unstructured_hinf"
     citation = f"{_CITE}, eqs. (3.44)-(3.53), (3.74)-(3.75)"
     variant = "unstructured_hinf"
+    structure = UNSTRUCTURED   # the kernel's observer form (lpv_wang_loop)
     default_options = {**_ROBUST, "gamma_slack": 1.01}
 
     def gains(self) -> tuple[float, ...]:
@@ -82,46 +85,6 @@ class LPVWangUnstructuredHinf(_RobustDesign):
             from roadtruth.observers.lpv_wang_robust_design import UNSTRUCTURED_KEYS
             self._L = usable_gains(self.name, self.design(), UNSTRUCTURED_KEYS)
         return self._L
-
-    def _advance(self, t_s: float, y: list[float]) -> None:
-        h = self._tick(t_s, y)
-        delta, r, vx, ax = self._u
-        if delta != delta:
-            return
-        z = self._z
-        if not self._have_delta:
-            z[0] -= delta
-            self._have_delta = True
-        if h <= 0.0 or r != r or vx != vx or ax != ax:
-            return
-        g = self._L if self._L is not None else self.gains()
-        vc, ac = self._scheduling(vx, ax)
-        m1 = 1.0 / vc
-        m2 = ac * m1
-        tl = self._t_last
-        if t_s - min(tl[0], tl[1], tl[2]) <= self._hold:
-            # A_o = Ao0 + m1 Ao1 + m2 Ao2 (g[0:12]); B_ou (g[12:30]); B_oy (g[30:36])
-            a11 = g[0] + m1 * g[4] + m2 * g[8]
-            a12 = g[1] + m1 * g[5] + m2 * g[9]
-            a21 = g[2] + m1 * g[6] + m2 * g[10]
-            a22 = g[3] + m1 * g[7] + m2 * g[11]
-            bd1 = g[12] + m1 * g[18] + m2 * g[24]
-            br1 = g[14] + m1 * g[20] + m2 * g[26]
-            bd2 = g[15] + m1 * g[21] + m2 * g[27]
-            br2 = g[17] + m1 * g[23] + m2 * g[29]
-            by1 = g[30] + m1 * g[32] + m2 * g[34]
-            by2 = g[31] + m1 * g[33] + m2 * g[35]
-            yv = delta - (self._lf + self._lr) * r / (vx if vx > self._vmin else self._vmin)
-        else:  # no measurement: the plant model at theta_m
-            A = self._A1
-            a11, a12, a21, a22 = m1 * A[0] - m2, m1 * A[1], m1 * A[2], m1 * A[3] - m2
-            bd1, br1, bd2, br2, by1, by2, yv = m2, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0
-        # x_hat1 = z1 + delta: the delta' terms cancel (B_ou's steering-rate column is (1, 0))
-        g1 = (a11 + bd1) * delta + br1 * r + by1 * yv
-        g2 = (a21 + bd2) * delta + br2 * r + by2 * yv
-        E, G = expm2_zoh(a11, a12, a21, a22, h)
-        z0, z1 = z
-        self._z = [E[0] * z0 + E[1] * z1 + G[0] * g1 + G[1] * g2, E[2] * z0 + E[3] * z1 + G[2] * g1 + G[3] * g2]
 
 
 @register

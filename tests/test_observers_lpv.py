@@ -355,3 +355,141 @@ def test_robust_family_runs_in_the_harness_on_mujoco(tmp_path) -> None:
     printed = rows[rows["observer"] == "lpv_wang_unstructured_h2_printed"]
     assert printed["status"].str.startswith("unusable").all(), printed[["observer", "status"]]
     assert (fresh["rmse"] < np.deg2rad(0.6)).all(), fresh[["observer", "rmse"]]
+
+
+# ---- the compiled kernel shared by step() and run() (observers/lpv_wang_loop.py) -----------------
+
+ALL_LPV = ("lpv_wang", "lpv_wang_printed", "lpv_wang_hinf", "lpv_wang_hinf_printed", "lpv_wang_h2",
+           "lpv_wang_h2_printed", "lpv_wang_unstructured_h2", "lpv_wang_unstructured_h2_printed",
+           "lpv_wang_unstructured_hinf", "lpv_wang_unstructured_hinf_printed")
+
+
+def _hard_log(vehicle):
+    """The own-model manoeuvre with everything the per-sample update has to get right: no steering
+    for the first samples (the change of variable waits for it), 20 % random dropouts, a 0.6 s gap of
+    r and v_x (past hold_s: prediction without correction), speeds below the design domain and below
+    the output floor, a_x beyond its range, a repeated and an irregular time stamp."""
+    t, Y, _, _ = _maneuver(vehicle, h=0.01, T=6.0)
+    Y, t = Y.copy(), t.copy()
+    gen = np.random.default_rng(5)
+    Y[:3] = np.nan
+    Y[gen.random(Y.shape) < 0.2] = np.nan
+    Y[200:260, 1:3] = np.nan
+    Y[300:320, 2] = 3.0
+    Y[320:330, 2] = 0.5
+    Y[330:340, 3] = -12.0
+    t[150] = t[149]
+    t[350:] += 0.0041
+    return t, Y
+
+
+def _python_reference(obs, t, Y, x0=None):
+    """The observer's update written out in plain Python (the loop the kernel replaced): held inputs,
+    z1 = alpha_f - delta from the first steering sample, theta_m clamped into the domain, exact ZOH
+    with (fresh inputs) or without (older than hold_s) the correction, derived v_y and beta."""
+    import math
+
+    from roadtruth.observers.bicycle import expm2_zoh, slip_model_terms
+    v, o = obs.vehicle, obs.options
+    A = slip_model_terms(v)[0].reshape(-1)
+    lf, lr, ell = v.lf_m, v.lr_m, v.lf_m + v.lr_m
+    (vlo, vhi), (alo, ahi) = o["vx_range_mps"], o["ax_range_mps2"]
+    e1, e2 = o["scheduling_error"]
+    g = obs.gains()
+    unstructured = len(g) == 36
+    u, tl = [math.nan] * 4, [-math.inf] * 4
+    z = [0.0, 0.0] if not x0 else [x0.get("alpha_f_rad", 0.0), x0.get("alpha_r_rad", 0.0)]
+    tc, have = float(t[0]), False
+    out = []
+    for ts, row in zip(t.tolist(), Y.tolist(), strict=True):
+        for j, val in enumerate(row):
+            if val == val:
+                u[j], tl[j] = val, ts
+        h = ts - tc if ts > tc else 0.0
+        tc = max(tc, ts)
+        d, r, vx, ax = u
+        if d == d:
+            if not have:
+                z[0] -= d
+                have = True
+            if h > 0.0 and r == r and vx == vx and ax == ax:
+                vc = min(max(vx * (1.0 + e1), vlo), vhi)
+                m1 = 1.0 / vc
+                m2 = min(max(ax * (1.0 + e2), alo), ahi) * m1
+                fresh = ts - min(tl[:3]) <= o["hold_s"]
+                yp = -ell * r / max(vx, o["vx_min_output_mps"])
+                P = [m1 * A[0] - m2, m1 * A[1], m1 * A[2], m1 * A[3] - m2]
+                if unstructured and fresh:
+                    c = [g[k] + m1 * g[k + 4] + m2 * g[k + 8] for k in range(4)]
+                    bu = [g[k] + m1 * g[k + 6] + m2 * g[k + 12] for k in range(12, 18)]
+                    by = [g[k] + m1 * g[k + 2] + m2 * g[k + 4] for k in (30, 31)]
+                    f1 = (c[0] + bu[0]) * d + bu[2] * r + by[0] * (d + yp)
+                    f2 = (c[2] + bu[3]) * d + bu[5] * r + by[1] * (d + yp)
+                elif unstructured:
+                    c, f1, f2 = P, (P[0] + m2) * d + r, P[2] * d + r
+                else:
+                    la, lb = (g[0] + m1 * g[2] + m2 * g[4], g[1] + m1 * g[3] + m2 * g[5]) if fresh else (0.0, 0.0)
+                    c = [P[0] - la, P[1] + la, P[2] - lb, P[3] + lb]
+                    f1, f2 = m1 * A[0] * d + r + la * yp, m1 * A[2] * d + r + lb * yp
+                E, G = expm2_zoh(*c, h)
+                z = [E[0] * z[0] + E[1] * z[1] + G[0] * f1 + G[1] * f2, E[2] * z[0] + E[3] * z[1] + G[2] * f1 + G[3] * f2]
+        af, ar = (z[0] + d if have else z[0]), z[1]
+        if not have or r != r or vx != vx:
+            out.append([af, ar, 0.0, 0.0])
+            continue
+        vv = max(vx, o["vx_min_output_mps"])
+        vy = 0.5 * (vv * math.tan(d - af) - lf * r - vv * math.tan(ar) + lr * r)
+        out.append([af, ar, math.atan2(vy, vv), vy])
+    return np.array(out)
+
+
+@pytest.mark.parametrize("name", ALL_LPV)
+def test_kernel_equals_the_python_update(name: str) -> None:
+    """The compiled kernel computes the documented per-sample update: equal to a plain-Python loop of
+    the same equations to 1e-12 (relative) through every guard rail of the hard log, with a scheduling
+    error and with an initial state."""
+    v = load_vehicle("sedan")
+    t, Y = _hard_log(v)
+    for opts, x0 in (({}, None), ({"scheduling_error": (-0.1, 0.15)}, {"alpha_f_rad": 0.02, "alpha_r_rad": -0.01})):
+        obs = create(name, v, **opts)
+        got = obs.run(t, Y, x0).x
+        want = _python_reference(obs, t, Y, x0)
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15)
+        assert np.ptp(got[:, 0]) > 1e-3  # the slip estimates moved
+
+
+@pytest.mark.parametrize("name", ALL_LPV)
+def test_run_is_one_compiled_call_and_equals_stepping_bit_for_bit(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """run() advances the whole log in one call of the compiled kernel that step() calls per sample, so
+    the estimates are the same bits (hard log: dropouts, an outage past hold_s, speeds outside the
+    domain, a repeated and an irregular time stamp), from the default and from a given initial state;
+    afterwards run() leaves the observer where stepping leaves it (the next step agrees)."""
+    import roadtruth.observers.lpv_wang as module
+
+    v = load_vehicle("sedan")
+    t, Y = _hard_log(v)
+    calls: list[int] = []
+    kernel = module.lpv_run
+
+    def counted(tt: np.ndarray, *args: object) -> None:
+        calls.append(len(tt))
+        kernel(tt, *args)
+
+    for x0 in (None, {"alpha_f_rad": 0.01, "alpha_r_rad": -0.005}):
+        monkeypatch.setattr(module, "lpv_run", counted)
+        calls.clear()
+        obs = create(name, v)
+        tr = obs.run(t, Y, x0)
+        assert calls == [len(t)]   # one compiled call for the whole run
+        monkeypatch.undo()
+        ref = create(name, v)
+        ref.reset(float(t[0]), x0)
+        want = np.array([ref.step(float(t[i]), Y[i]).x for i in range(len(t))])
+        assert tr.x.tobytes() == want.tobytes()
+        assert np.all(np.isfinite(tr.x))
+        if x0:
+            assert tr.x[0, 0] == x0["alpha_f_rad"] and tr.x[0, 1] == x0["alpha_r_rad"]  # no steering yet
+        row = np.array([0.01, 0.05, 15.0, 0.5])
+        nxt, nref = obs.step(float(t[-1]) + 0.01, row), ref.step(float(t[-1]) + 0.01, row)
+        assert nxt.x.tobytes() == nref.x.tobytes()
+        assert nxt.x.tobytes() != tr.x[-1].tobytes()  # the step did move the state
