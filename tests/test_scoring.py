@@ -159,6 +159,21 @@ def test_estimates_are_held_zero_order_from_the_first_output():
     assert r.max_abs == pytest.approx(0.009, abs=1e-9)
 
 
+
+def test_estimate_rows_out_of_time_order_score_as_in_order():
+    # A plug-in may return rows in any order: scoring holds them in time order either way.
+    t_truth = np.round(np.arange(0, 1.0, 0.001), 9)
+    t_est = np.round(np.arange(0.1, 1.0, 0.01), 9)
+    value = np.sin(3 * t_est)
+    lo, hi = value - 0.01, value + 0.02
+    ordered = one_row(truth_frame(t_truth, vy_mps=np.sin(3 * t_truth)), long("kf", "vy_mps", t_est, value, lo, hi))
+    perm = np.random.default_rng(3).permutation(t_est.size)
+    shuffled = one_row(truth_frame(t_truth, vy_mps=np.sin(3 * t_truth)),
+                       long("kf", "vy_mps", t_est[perm], value[perm], lo[perm], hi[perm]))
+    for k in ("rmse", "bias", "max_abs", "coverage", "mean_width", "n_scored"):
+        assert shuffled[k] == ordered[k]
+    assert ordered.n_scored == t_truth.size - 100 and 0.0 < ordered.coverage < 1.0
+
 def test_bad_status_still_gets_rows_with_nan_metrics():
     est = long("kf", "vy_mps", T, np.zeros_like(T))
     runs = {"kf": Run(), "lpv": Run(status="error: LMI infeasible", certified=False, us_per_step=math.nan)}

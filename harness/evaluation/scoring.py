@@ -135,12 +135,13 @@ class Aligned:
     dt_s: np.ndarray
     t0_s: float
     band: float
+    finite_error: np.ndarray | None = None  # ``error`` without its NaNs (computed once, read by five metrics)
 
 
 # ---- one function per metric ---------------------------------------------------------------
 
 def _finite_error(a: Aligned) -> np.ndarray:
-    return a.error[np.isfinite(a.error)]
+    return a.finite_error if a.finite_error is not None else a.error[np.isfinite(a.error)]
 
 
 def rmse(a: Aligned) -> float:
@@ -290,13 +291,18 @@ def align(
         The long-format rows of one observer and one state: ``t_s, value`` and optionally
         ``lo, hi, var``.
     """
-    est = est.sort_values("t_s", kind="stable")
+    cols = {c: est[c].to_numpy(float) for c in ("t_s", "value", "lo", "hi", "var") if c in est.columns}
+    t_est = cols["t_s"]
+    if t_est.size > 1 and not bool(np.all(t_est[1:] >= t_est[:-1])):  # observers emit in time order
+        order = np.argsort(t_est, kind="stable")
+        cols = {c: v[order] for c, v in cols.items()}
     # Scoring starts at the observer's first estimate (rows before it are "not started yet", e.g.
     # a radar observer before the first radar sample), not at its first output row.
-    started = np.isfinite(est["value"].to_numpy(float)) if "value" in est.columns else np.ones(len(est), bool)
+    started = np.isfinite(cols["value"]) if "value" in cols else np.ones(t_est.size, bool)
     if started.any() and not started[0]:
-        est = est.iloc[int(np.argmax(started)):]
-    t_est = est["t_s"].to_numpy(float)
+        first = int(np.argmax(started))
+        cols = {c: v[first:] for c, v in cols.items()}
+    t_est = cols["t_s"]
     idx = np.searchsorted(t_est, t_truth + TIME_TOL_S, side="right") - 1
     keep = idx >= 0
     idx = idx[keep]
@@ -304,9 +310,9 @@ def align(
     tr = truth[keep]
 
     def column(name: str) -> np.ndarray:
-        if name not in est.columns:
+        if name not in cols:
             return np.full(idx.size, np.nan)
-        return est[name].to_numpy(float)[idx]
+        return cols[name][idx]
 
     value = column("value")
     err = value - tr
@@ -319,6 +325,7 @@ def align(
     return Aligned(
         t_s=t, truth=tr, value=value, error=err, lo=column("lo"), hi=column("hi"), var=column("var"),
         fresh=fresh, dt_s=dt_s, t0_s=float(t_truth[0]) if t_truth.size else 0.0, band=band,
+        finite_error=err[np.isfinite(err)],
     )
 
 
