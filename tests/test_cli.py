@@ -104,7 +104,7 @@ def test_simulate_path_imports_neither_the_report_builder_nor_scipy_signal() -> 
 
 
 def test_quick_exit_runs_atexit_handlers_and_flushes_before_leaving() -> None:
-    code = ("import atexit, sys\nfrom harness import cli\n"
+    code = ("import atexit, sys\nfrom roadtruth.harness import cli\n"
             "atexit.register(lambda: sys.stdout.write('handler ran\\n'))\n"
             "sys.stdout.write('x' * 100000)\n"
             "cli._leave(3)\n")
@@ -121,6 +121,26 @@ def test_console_script_keeps_exit_codes_and_whole_output() -> None:
     bad = run_cli("scenarios", "--no-such-flag")
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1
 
+
+
+def test_installed_command_works_outside_the_source_folder(tmp_path: Path) -> None:
+    """The ``roadtruth`` script as a user runs it: from another folder, where only the installed
+    ``roadtruth`` package is importable (no ``harness`` or ``observers`` on the path)."""
+    import os
+    import shutil
+
+    exe = Path(sys.executable).parent / "roadtruth"
+    script = str(exe) if exe.is_file() else shutil.which("roadtruth")
+    if script is None:
+        pytest.skip("the roadtruth console script is not installed in this environment")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    env["ROADTRUTH_CACHE"] = str(tmp_path / "cache")
+    for _ in range(2):  # computed, then remembered
+        for cmd in ("scenarios", "observers", "vehicles"):
+            res = subprocess.run([script, cmd, "--json"], capture_output=True, text=True, timeout=300,
+                                 cwd=tmp_path, env=env)
+            assert res.returncode == 0, res.stderr
+            assert len(json.loads(res.stdout)) >= 3
 
 def test_observer_listing_is_remembered_and_then_imports_no_observer(tmp_path: Path) -> None:
     """The second `roadtruth observers` reads the remembered rows: same text, no numba or cvxpy."""
@@ -154,9 +174,9 @@ def test_observer_catalog_key_follows_every_source_file(tmp_path: Path, monkeypa
     monkeypatch.setattr(observer_catalog, "_package_dir", lambda name: pkgs[name])
     k0 = observer_catalog.catalog_key()
     assert observer_catalog.catalog_key() == k0
-    (pkgs["observers"] / "sub" / "new.py").write_text("")
+    (pkgs["roadtruth.observers"] / "sub" / "new.py").write_text("")
     k1 = observer_catalog.catalog_key()
-    f = pkgs["harness"] / "a.py"
+    f = pkgs["roadtruth.harness"] / "a.py"
     st = f.stat()
     os.utime(f, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))
     k2 = observer_catalog.catalog_key()

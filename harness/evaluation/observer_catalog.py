@@ -5,7 +5,7 @@ and with them numba, cvxpy and the compiled loops: seconds, for a few lines of t
 change when code changes, so they are kept in the cache folder (``roadtruth.harness.files.disk_cache``, kind
 ``observer-catalog``) under a key made of everything they are derived from: the roadtruth version,
 the Python version, and the path, size and modification time of every ``.py`` file of the
-``harness`` and ``observers`` packages. Editing, adding or removing any of them gives a new key.
+``roadtruth.harness`` and ``roadtruth.observers`` packages. Editing, adding or removing any of them gives a new key.
 
 Not cached: a listing with observer plug-ins (entry points of ``roadtruth.observers``: their code
 lives elsewhere and is not in the key), and a listing during which a module failed to import (its
@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 CACHE_KIND = "observer-catalog"
-PACKAGES = ("harness", "observers")
+PACKAGES = ("roadtruth.harness", "roadtruth.observers")
 
 
 def _package_dir(name: str) -> Path:
