@@ -63,6 +63,9 @@ Harness choices (documented options):
   (0.05 m offset noise at 20 Hz); ``psi_L'``: 0.0013 rad/s (L = 1-3) vs 0.012 rad/s (L = 0.3). The
   defaults are tuned for the automotive camera.
 * The gyro corrects while its latest sample is younger than ``hold_s``; otherwise open loop.
+* Compiled: the whole per-sample update (differentiators, premises, step, outputs) is one kernel
+  (:mod:`roadtruth.observers.takagi_sugeno_loop`) that ``step()`` calls with one sample and ``run()``
+  with the whole log: both give the same bits.
 * Forces: ``fy_f_N`` of the truth is the axle force in the tire frame; (1) uses the body-frame force
   ``F_f = fy_f cos(delta) + fx_f sin(delta) ~ fy_f`` (small steer; 0.1 % at 3 deg). The estimate is
   reported as is, under the canonical name.
@@ -71,103 +74,26 @@ Harness choices (documented options):
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from roadtruth.harness.errors import InputError
-from roadtruth.harness.truth.tire import jit
-from roadtruth.observers.base import ScalarLoopObserver
-from roadtruth.observers.levant_differentiator import LAMBDAS, LevantDifferentiator
+from roadtruth.observers import takagi_sugeno_loop as loop
+from roadtruth.observers.algebraic_vy_loop import levant_table
+from roadtruth.observers.base import EstimateTrack, ScalarLoopObserver, StepOutput
+from roadtruth.observers.levant_differentiator import LAMBDAS
 from roadtruth.observers.lmi import DesignFailed, DesignResult, DesignStatus
 from roadtruth.observers.registry import register
 from roadtruth.observers.takagi_sugeno_design import (
     RULES,
     SEED_STIFFNESS_NPR,
     TSModel,
-    secant_slope,
     sector_bounds,
 )
+from roadtruth.observers.takagi_sugeno_loop import expm_taylor, rule_weights, ts_step  # noqa: F401 (public)
 from roadtruth.observers.tire_curves import axle_curves
-
-# ---- compiled step -------------------------------------------------------------------------------
-
-@jit
-def expm_taylor(M: np.ndarray) -> np.ndarray:
-    """``exp(M)`` of a small square matrix: scaling and squaring with an order-12 Taylor series."""
-    n = M.shape[0]
-    norm = 0.0
-    for j in range(n):
-        s = 0.0
-        for i in range(n):
-            s += abs(M[i, j])
-        norm = max(norm, s)
-    sq = 0
-    while norm > 0.25:
-        norm *= 0.5
-        sq += 1
-    A = M * (0.5 ** sq)
-    E = np.eye(n)
-    T = np.eye(n)
-    for k in range(1, 13):
-        T = T @ A / k
-        E = E + T
-    for _ in range(sq):
-        E = E @ E
-    return E
-
-
-@jit
-def rule_weights(mv1: float, mf1: float, mr1: float, as_printed: bool, w: np.ndarray) -> None:
-    """Fill ``w`` (8,) with ``h_i = mu_vl mu_fj mu_rk`` in the order of ``RULES`` (memberships of the
-    first vertices given, clipped to [0, 1]); ``as_printed`` swaps rules (1,2)<->(2,1) as eq. (22)."""
-    mv1 = min(max(mv1, 0.0), 1.0)
-    mf1 = min(max(mf1, 0.0), 1.0)
-    mr1 = min(max(mr1, 0.0), 1.0)
-    i = 0
-    for l in range(2):
-        mv = mv1 if l == 0 else 1.0 - mv1
-        for j in range(2):
-            mf = mf1 if j == 0 else 1.0 - mf1
-            for k in range(2):
-                mr = mr1 if k == 0 else 1.0 - mr1
-                w[i] = mv * mf * mr
-                i += 1
-    if as_printed:
-        for base in (0, 4):
-            a = w[base + 1]
-            w[base + 1] = w[base + 2]
-            w[base + 2] = a
-
-
-@jit
-def ts_step(x: np.ndarray, h: float, mv1: float, mf1: float, mr1: float, as_printed: bool, delta: float,
-            r_meas: float, correct: bool, Av: np.ndarray, Bv: np.ndarray, Lv: np.ndarray, w: np.ndarray) -> None:
-    """Advance ``x`` (4,) in place by ``h`` [s]: exact ZOH of ``x' = Phi x + g``.
-
-    Weights ``w`` (8,, scratch, filled by :func:`rule_weights` from the memberships), then
-    ``Phi = sum w_i (A_i - L_i C)``, ``g = sum w_i (B_i delta + L_i r_meas)`` (``L = 0`` unless
-    ``correct``); ``Av`` (8, 4, 4), ``Bv`` (8, 4), ``Lv`` (8, 4). Uses the augmented exponential
-    ``exp([[Phi, g], [0, 0]] h)``.
-    """
-    rule_weights(mv1, mf1, mr1, as_printed, w)
-    M = np.zeros((5, 5))
-    for i in range(w.shape[0]):
-        wi = w[i]
-        if wi == 0.0:
-            continue
-        for a in range(4):
-            for b in range(4):
-                M[a, b] += wi * Av[i, a, b]
-            M[a, 4] += wi * Bv[i, a] * delta
-            if correct:
-                M[a, 1] -= wi * Lv[i, a]
-                M[a, 4] += wi * Lv[i, a] * r_meas
-    E = expm_taylor(M * h)
-    x0, x1, x2, x3 = x[0], x[1], x[2], x[3]
-    for a in range(4):
-        x[a] = E[a, 0] * x0 + E[a, 1] * x1 + E[a, 2] * x2 + E[a, 3] * x3 + E[a, 4]
-
 
 # ---- observer ------------------------------------------------------------------------------------
 
@@ -260,13 +186,23 @@ class TakagiSugenoYacine(ScalarLoopObserver):
         self._w = np.zeros(len(RULES))
         self._x = np.zeros(4)
         self._printed = o["rule_order"] == "as_printed"
+        # the kernel's constants (roadtruth.observers.takagi_sugeno_loop)
+        tm = self.ts_model
+        self._par = np.array([vlo, vhi, tm.af_m, tm.ar_m, tm.mf_Npr[0], tm.mf_Npr[1], tm.mr_Npr[0], tm.mr_Npr[1],
+                              tm.mass_kg, tm.yaw_inertia_kgm2, float(o["lookahead_m"]), float(o["camera_timeout_s"]),
+                              float(o["differentiator_settle_s"]), float(o["hold_s"]), float(self._heading_cg),
+                              float(self._printed), float(self.premise_from_camera)])
+        assert self._par.shape == (loop.N_PAR,)
+        self._kcurves = np.array(self._curves, dtype=float)
 
     def _compute_design(self) -> DesignResult:
         from roadtruth.observers.takagi_sugeno_design import design_for
         result = design_for(self.design_request(self.ts_model))
         # Load/compile the kernel now, so the first estimation step is not charged with the JIT.
-        ts_step(np.zeros(4), 0.01, 1.0, 1.0, 1.0, False, 0.0, 0.0, True, self._Av, self._Bv,
-                np.zeros((len(RULES), 4)), np.zeros(len(RULES)))
+        k = int(self.options["differentiator_order"])
+        loop.ts_run(np.empty(0), np.empty((0, 5)), np.zeros(5), np.zeros(4), np.zeros(7), np.zeros(k + 3),
+                    np.zeros(k + 3), self._lev_table(), self._par, self._kcurves, self._Av, self._Bv,
+                    np.zeros((len(RULES), 4)), np.zeros(len(RULES)), np.empty((0, 6)))
         return result
 
     def gains(self) -> np.ndarray:
@@ -291,84 +227,71 @@ class TakagiSugenoYacine(ScalarLoopObserver):
             z[names.index(key)] = float(value)
         return z
 
-    def _reset_extra(self) -> None:
+    def _lev_table(self) -> np.ndarray:
         o = self.options
-        self._x[:] = self._z
-        k = int(o["differentiator_order"])
-        self.diff_y = LevantDifferentiator(k, float(o["lipschitz_y_lane"]))
-        self.diff_psi = LevantDifferentiator(k, float(o["lipschitz_psi_lane"]))
-        self._t_cam = -math.inf      # time of the latest camera sample
-        self._t_cam_start = math.inf  # when the differentiators were (re)started
-        self._vy_alg = math.nan      # algebraic v_y (26), NaN until the premise is trusted
-        self._rho = 0.0
-        self.premise_source = "observer"
+        return levant_table(int(o["differentiator_order"]), float(o["lipschitz_y_lane"]), float(o["lipschitz_psi_lane"]))
+
+    def _reset_extra(self) -> None:
+        k = int(self.options["differentiator_order"])
+        self._lev = self._lev_table()
+        self._x = np.array(self._z, dtype=float)
+        self._ku = np.full(5, math.nan)            # held (r, delta, v_x, y_L, psi_L)
+        # (t_cur, t_cam, t_cam_start, v_y_alg, rho, premise_is_camera, t_gyro); see takagi_sugeno_loop
+        self._ks = np.array([self._t, -math.inf, math.inf, math.nan, 0.0, 0.0, -math.inf])
+        self._kdy, self._kdp = np.zeros(k + 3), np.zeros(k + 3)   # differentiators of y_L, psi_L
+        self._last = self._outputs_now()
+
+    def _outputs_now(self) -> np.ndarray:
+        """The outputs of the current state, as the kernel writes them (before the first sample)."""
+        x = self._x
+        m, iz = self.ts_model.mass_kg, self.ts_model.yaw_inertia_kgm2
+        af, ar = self.ts_model.af_m, self.ts_model.ar_m
+        vx = self._ku[2]
+        beta = math.atan2(x[0], vx) if vx == vx and vx > 0.1 else 0.0
+        return np.array([x[0], x[1], beta, (m * ar * x[2] + iz * x[3]) / (af + ar),
+                         (m * af * x[2] - iz * x[3]) / (af + ar), self._ks[4]])
+
+    @property
+    def premise_source(self) -> str:
+        """Where the rule weights of the latest step came from: ``"camera"`` or ``"observer"``."""
+        return "camera" if self._ks[5] != 0.0 else "observer"
 
     def premise_ready(self, t_s: float) -> bool:
         """The camera premise is usable: differentiators settled and the camera not silent."""
         o = self.options
-        return (t_s - self._t_cam_start >= o["differentiator_settle_s"]
-                and t_s - self._t_cam <= o["camera_timeout_s"])
+        return bool(t_s - self._ks[2] >= o["differentiator_settle_s"] and t_s - self._ks[1] <= o["camera_timeout_s"])
 
-    def _camera(self, t_s: float, yl: float, pl: float, r: float, vx: float) -> None:
-        tau = t_s - self._t_cam
-        if tau > self.options["camera_timeout_s"] or not self.diff_y.initialized:
-            self.diff_y.reset(yl)
-            self.diff_psi.reset(pl)
-            self._t_cam_start = t_s
-        else:
-            self.diff_y.update(yl, tau)
-            self.diff_psi.update(pl, tau)
-        self._t_cam = t_s
-        if t_s - self._t_cam_start < self.options["differentiator_settle_s"] or vx != vx:
-            return
-        dy, dpsi = self.diff_y.z[1], self.diff_psi.z[1]
-        ls = self.options["lookahead_m"]
-        if self._heading_cg:
-            self._vy_alg = dy - vx * pl - ls * dpsi                               # (26) as printed
-        elif r == r:
-            self._vy_alg = dy - vx * pl - ls * r                                  # (26), camera convention
-        if r == r and vx >= self.ts_model.vx_range_mps[0]:
-            self._rho = (r - dpsi) / vx                                           # (11)
+    def _compiled(self, t: np.ndarray, Y: np.ndarray) -> np.ndarray:
+        """Advance through ``t`` (n,) [s], ``Y`` (n, 5) in the shared kernel; outputs (n, 6)."""
+        Lv = self._Lv if self._Lv is not None else self.gains()   # a failed design raises here
+        out = np.empty((t.shape[0], 6))
+        loop.ts_run(t, Y, self._ku, self._x, self._ks, self._kdy, self._kdp, self._lev, self._par, self._kcurves,
+                    self._Av, self._Bv, Lv, self._w, out)
+        if t.shape[0]:
+            self._last = out[-1].copy()
+        self._t = float(self._ks[0])
+        self._z = self._x.tolist()
+        return out
+
+    def step(self, t_s: float, y: np.ndarray) -> StepOutput:
+        """One sample through the compiled kernel (the same code ``run()`` loops in, so the same bits)."""
+        out = self._compiled(np.array([float(t_s)]),
+                             np.ascontiguousarray(np.asarray(y, dtype=float).reshape(1, 5)))
+        return StepOutput(out[0])
+
+    def run(self, t: np.ndarray, Y: np.ndarray, x0: Mapping[str, float] | None = None) -> EstimateTrack:
+        """Reset at ``t[0]`` and advance through the whole log in one compiled call (equal to stepping)."""
+        t = np.ascontiguousarray(t, dtype=float)
+        Y = np.ascontiguousarray(np.asarray(Y, dtype=float).reshape(len(t), len(self.inputs)))
+        if len(t):
+            self.reset(float(t[0]), x0)
+        return EstimateTrack(self.name, tuple(self.states), t, self._compiled(t, Y))
 
     def _advance(self, t_s: float, y: list[float]) -> None:
-        h = self._tick(t_s, y)
-        u, fresh = self._u, self._fresh
-        r, delta, vx, yl, pl = u
-        if fresh[3] and fresh[4]:
-            self._camera(t_s, yl, pl, r, vx)
-        if h <= 0.0 or delta != delta or vx != vx:
-            return
-        Lv = self._Lv if self._Lv is not None else self.gains()
-        x = self._x
-        vlo, vhi = self.ts_model.vx_range_mps
-        vc = vlo if vx < vlo else (vhi if vx > vhi else vx)
-        correct = r == r and t_s - self._t_last[0] <= self.options["hold_s"]
-        rp = r if r == r else x[1]
-        if self.premise_from_camera and self.premise_ready(t_s) and self._vy_alg == self._vy_alg:
-            vy_p = self._vy_alg
-            self.premise_source = "camera"
-        else:
-            vy_p = x[0]
-            self.premise_source = "observer"
-        af = delta - (vy_p + self.ts_model.af_m * rp) / vc   # (4)
-        ar = -(vy_p - self.ts_model.ar_m * rp) / vc
-        c = self._curves
-        ff = secant_slope(af, c[0], c[1], c[2], c[3])
-        fr = secant_slope(ar, c[4], c[5], c[6], c[7])
-        mf, mr = self.ts_model.mf_Npr, self.ts_model.mr_Npr
-        ts_step(x, h, (vc - vlo) / (vhi - vlo), (ff - mf[1]) / (mf[0] - mf[1]), (fr - mr[1]) / (mr[0] - mr[1]),
-                self._printed, delta, r if correct else 0.0, correct, self._Av, self._Bv, Lv, self._w)
-        self._z = [x[0], x[1], x[2], x[3]]
+        self.step(t_s, np.array(y, dtype=float))
 
     def _values(self) -> list[float]:
-        x = self._x
-        vx = self._u[2]
-        m, iz = self.ts_model.mass_kg, self.ts_model.yaw_inertia_kgm2
-        af, ar = self.ts_model.af_m, self.ts_model.ar_m
-        beta = math.atan2(x[0], vx) if vx == vx and vx > 0.1 else 0.0
-        ff = (m * ar * x[2] + iz * x[3]) / (af + ar)   # (46)
-        fr = (m * af * x[2] - iz * x[3]) / (af + ar)
-        return [x[0], x[1], beta, ff, fr, self._rho]
+        return self._last.tolist()
 
 
 @register

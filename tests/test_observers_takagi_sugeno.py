@@ -293,3 +293,78 @@ def test_short_mujoco_curvy_road_run_gives_finite_metrics() -> None:
     assert set(rows.index) == {"vy_mps", "yaw_rate_radps", "beta_rad", "fy_f_N", "fy_r_N", "rho_1pm"}
     assert np.all(np.isfinite(rows["rmse"]))
     assert rows.loc["vy_mps", "rmse"] < 0.1 and rows.loc["rho_1pm", "rmse"] < 0.01
+
+
+# ---- compiled loop -------------------------------------------------------------------------------------
+
+def _ragged_camera_log(n: int = 2500) -> tuple[np.ndarray, np.ndarray]:
+    """Own-model inputs (h = 2 ms) with a 25 Hz camera, a camera gap longer than the timeout, gyro and
+    steering dropouts, a repeated and a jittered block of time stamps."""
+    data = own_model(SEED_CAR, t_end=n * 2e-3, h=2e-3, sub=2)
+    t, Y = data[:, 0].copy(), data[:, 1:6].copy()
+    gen = np.random.default_rng(11)
+    cam = np.arange(len(t)) % 20 == 0
+    cam[1000:1300] = False
+    Y[~cam, 3:5] = np.nan
+    Y[gen.random(len(t)) < 0.2, 0] = np.nan
+    Y[gen.random(len(t)) < 0.1, 1] = np.nan
+    Y[1600:1700, 0] = np.nan   # gyro older than hold_s: open loop
+    t[401] = t[400]
+    t[1800:1850] += gen.uniform(-8e-4, 8e-4, 50)
+    return t, Y
+
+
+@pytest.mark.parametrize("name", ["ts_yacine", "ts_yacine_xhat"])
+def test_run_is_one_compiled_call_and_equals_stepping_bit_for_bit(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """run() is one call of the compiled kernel step() calls per sample: the same bits through camera
+    gaps (differentiators re-armed, premise falls back to the estimate), gyro and steering dropouts,
+    repeated and irregular time stamps and an initial state; the premise source and the state end where
+    stepping leaves them, the next step agrees, and run() again repeats itself."""
+    import roadtruth.observers.takagi_sugeno_loop as loop
+
+    t, Y = _ragged_camera_log()
+    opts = {"lane_heading_at": "cg", "lipschitz_y_lane": 30.0, "lipschitz_psi_lane": 5.0, **SEED_RANGE}
+    calls: list[int] = []
+    kernel = loop.ts_run
+
+    def counted(tt: np.ndarray, *args: object) -> None:
+        calls.append(len(tt))
+        kernel(tt, *args)
+
+    x0 = {"vy_mps": 0.8, "yaw_rate_radps": 0.02}
+    obs = create(name, SEED_CAR, **opts)
+    obs.design()
+    monkeypatch.setattr(loop, "ts_run", counted)
+    tr = obs.run(t, Y, x0)
+    assert calls == [len(t)]
+    monkeypatch.undo()
+    ref = create(name, SEED_CAR, **opts)
+    ref.reset(float(t[0]), x0)
+    sources = []
+    stepped = []
+    for i in range(len(t)):
+        stepped.append(ref.step(float(t[i]), Y[i]).x)
+        sources.append(ref.premise_source)
+    assert tr.x.tobytes() == np.array(stepped).tobytes()
+    assert tr.x[0, 0] == 0.8 and np.all(np.isfinite(tr.x))
+    if name == "ts_yacine":
+        assert sources[900] == "camera" and sources[1250] == "observer" and sources[-1] == "camera"
+    else:
+        assert set(sources) == {"observer"}
+    assert obs.premise_source == ref.premise_source
+    y_next = np.array([0.01, 0.0, 15.0, np.nan, np.nan])
+    assert obs.step(float(t[-1]) + 2e-3, y_next).x.tobytes() == ref.step(float(t[-1]) + 2e-3, y_next).x.tobytes()
+    assert obs.run(t, Y, x0).x.tobytes() == tr.x.tobytes()
+
+
+def test_camera_premise_differs_from_the_estimate_premise() -> None:
+    """On the same log the camera-premise and the estimate-premise observers start from the same state
+    but weigh their rules differently: the curvature is the camera's in both, the v_y paths differ while
+    the estimate has not converged (so a kernel that ignored premise_from_camera would fail here)."""
+    t, Y = _ragged_camera_log()
+    opts = {"lane_heading_at": "cg", "lipschitz_y_lane": 30.0, "lipschitz_psi_lane": 5.0, **SEED_RANGE}
+    a = create("ts_yacine", SEED_CAR, **opts).run(t, Y).x
+    b = create("ts_yacine_xhat", SEED_CAR, **opts).run(t, Y).x
+    assert np.abs(a[300:700, 0] - b[300:700, 0]).max() > 1e-4
+    assert a[:, 5].tobytes() == b[:, 5].tobytes()   # rho (11) does not depend on the premise
+    assert np.abs(a[-100:, 5] - 0.005).max() < 1.5e-3   # 25 Hz camera: the differentiator's lag
