@@ -75,3 +75,14 @@ class Hangs(_YawEcho):
 
 
 MISBEHAVING = (RaisesInputErrorInRun, RaisesInDesign, CallsSysExit, Segfaults, Hangs)
+
+
+class ReportsFrozenObjects(_YawEcho):
+    """Reports how many objects its process has frozen out of garbage collection (``gc.freeze``)."""
+
+    name = "plugin_gc_probe"
+
+    def _values(self) -> list[float]:
+        import gc
+
+        return [float(gc.get_freeze_count())]

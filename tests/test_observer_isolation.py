@@ -67,6 +67,18 @@ def _frame(n: int = 400, h: float = 0.01) -> pd.DataFrame:
                          "delta_rad": delta, "steering_valid": 1})
 
 
+
+def test_a_host_freezes_its_imports_out_of_garbage_collection():
+    # A full collection walks every object the imports left (0.2-0.7 s), and whichever observer's
+    # timed run() it falls in would be charged for it; the host freezes them once it is ready.
+    registry.register(plugin_observers.ReportsFrozenObjects)
+    try:
+        est, runs = run_observers(_frame(), SEDAN, ["plugin_gc_probe"])
+    finally:
+        registry.unregister("plugin_gc_probe")
+    assert runs["plugin_gc_probe"].n_steps == len(_frame())  # ran (a yaw rate of 1e5 reads as diverged)
+    assert est["value"].min() > 10_000  # numpy, numba, cvxpy, the observers: tens of thousands
+
 # ---- library level ---------------------------------------------------------------------------------
 
 @pytest.mark.parametrize(("bad", "timeout_s", "status"), FAILURES, ids=[f[0] for f in FAILURES])

@@ -39,6 +39,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import copy
+import gc
 import importlib
 import importlib.util
 import math
@@ -219,6 +220,11 @@ def main(argv: Sequence[str]) -> int:
         from roadtruth.observers.registry import available_observers
 
         available_observers()  # numpy, numba kernels, cvxpy and every observer, imported once
+    # The imports leave some millions of objects that every full garbage collection would walk
+    # again: 0.2-0.7 s, charged to whichever observer's timed run() it happens to fall in (a
+    # 5 µs/step loop measured 262 µs/step). Frozen, they are never walked again.
+    gc.collect()
+    gc.freeze()
     replies.send(("ready", os.getpid()))
     while True:
         try:
