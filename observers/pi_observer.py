@@ -16,6 +16,9 @@ required: without it the integrated unknown input has an unobservable mode at ``
 trapezoidal integral of the gyro (re-centred to (-pi, pi] with ``psi_hat``). Between samples the
 affine ODE is integrated by RK4 (first-order hold of the inputs, sub-steps ``||M|| h <= 0.5``);
 without fresh ``v_x`` and ``r`` (older than ``hold_s``) it predicts without correction.
+
+*Compiled.* ``step()`` and ``run()`` call the same numba kernel (:mod:`roadtruth.observers.pi_observer_loop`),
+with one sample or the whole log, so they agree bit for bit.
 """
 
 from __future__ import annotations
@@ -27,10 +30,10 @@ from typing import Any
 import numpy as np
 
 from roadtruth.harness.errors import InputError
-from roadtruth.observers.base import ScalarLoopObserver
+from roadtruth.observers.base import EstimateTrack, ScalarLoopObserver, StepOutput
 from roadtruth.observers.lmi import DesignResult, usable_gains
+from roadtruth.observers.pi_observer_loop import N_PAR, N_STATE, pi_run
 from roadtruth.observers.registry import register
-from roadtruth.observers.uio_nguyen import SUBSTEP_RATE, TWO_PI, affine_rk4
 from roadtruth.observers.uio_nguyen_design import MU_SCALE_N, N_MU, N_X, N_Y, scheduling_points, vehicle_model
 
 N_A = N_X + N_MU
@@ -71,6 +74,7 @@ class PIObserverNguyen(ScalarLoopObserver):
         self._vlo, self._vhi, self._hold, self._kappa = lo, hi, hold, kappa
         self._model = vehicle_model(self.vehicle)
         self._consts: tuple[np.ndarray, ...] | None = None
+        self._par: np.ndarray | None = None   # the kernel's (v_lo, v_hi, hold_s, rate bounds)
 
     def _compute_design(self) -> DesignResult:
         from roadtruth.observers.pi_observer_design import design_for
@@ -112,52 +116,46 @@ class PIObserverNguyen(ScalarLoopObserver):
         return z
 
     def _reset_extra(self) -> None:
+        self._ku = np.full(4, math.nan)       # held (v_x, r, a_x, delta)
+        self._ktl = np.full(4, -math.inf)     # their arrival times [s]
         self._zh = np.array(self._z, dtype=float)
-        self._psi_m = 0.0
-        self._r_prev, self._t_r_prev = math.nan, math.nan
-        self._w_prev: np.ndarray | None = None
-        self._started = False
+        # (t_cur, started, psi_m, r_prev, t_r_prev, have_w_prev): see pi_observer_loop
+        self._ks = np.array([self._t, 0.0, 0.0, math.nan, math.nan, 0.0])
+        assert self._ks.shape == (N_STATE,)
+        self._kw = np.zeros(5)                # ODE input at the end of the previous step
+        vy = float(self._zh[1])
+        self._last = np.array([vy, float(self._zh[3]), math.atan2(vy, self._zh[0]) if self._zh[0] > 0.0 else 0.0])
+
+    def _compiled(self, t: np.ndarray, Y: np.ndarray) -> np.ndarray:
+        """Advance through ``t`` (n,) [s], ``Y`` (n, 4) in the shared kernel; the estimates (n, 3)."""
+        Fs, Gs, Fp, Gp, bounds = self._consts if self._consts is not None else self.constants()
+        if self._par is None:   # a failed design raises in constants(), on the first sample
+            self._par = np.array([self._vlo, self._vhi, self._hold, bounds[0], bounds[1]])
+            assert self._par.shape == (N_PAR,)
+        x = np.empty((t.shape[0], 3))
+        pi_run(t, Y, self._ku, self._ktl, self._zh, self._ks, self._kw, Fs, Gs, Fp, Gp, self._par, x)
+        if t.shape[0]:
+            self._last = x[-1].copy()
+        return x
+
+    def step(self, t_s: float, y: np.ndarray) -> StepOutput:
+        """One sample through the compiled kernel (the same code ``run()`` loops in, so the same bits)."""
+        x = self._compiled(np.array([float(t_s)]), np.ascontiguousarray(np.asarray(y, dtype=float).reshape(1, 4)))
+        return StepOutput(x[0])
+
+    def run(self, t: np.ndarray, Y: np.ndarray, x0: Mapping[str, float] | None = None) -> EstimateTrack:
+        """Reset at ``t[0]`` and advance through the whole log in one compiled call (equal to stepping)."""
+        t = np.ascontiguousarray(t, dtype=float)
+        Y = np.ascontiguousarray(np.asarray(Y, dtype=float).reshape(len(t), len(self.inputs)))
+        if len(t):
+            self.reset(float(t[0]), x0)
+        return EstimateTrack(self.name, tuple(self.states), t, self._compiled(t, Y))
 
     def _advance(self, t_s: float, y: list[float]) -> None:
-        h = self._tick(t_s, y)
-        Fs, Gs, Fp, Gp, bounds = self._consts if self._consts is not None else self.constants()
-        vx, r, ax, delta = self._u
-        z = self._zh
-        if not self._started:
-            if vx != vx:
-                return
-            z[0] = vx
-            self._started = True
-        if self._fresh[1]:
-            if self._r_prev == self._r_prev:
-                self._psi_m += 0.5 * (t_s - self._t_r_prev) * (self._r_prev + r)
-            self._r_prev, self._t_r_prev = r, t_s
-        if self._psi_m > math.pi or self._psi_m < -math.pi:
-            # psi enters only through the residual psi_m - psi_hat and nowhere in A: shift both.
-            c = TWO_PI * round(self._psi_m / TWO_PI)
-            self._psi_m -= c
-            z[2] -= c
-            if self._w_prev is not None:
-                self._w_prev[1] -= c
-        v = vx if vx == vx else z[0]
-        v = self._vlo if v < self._vlo else (self._vhi if v > self._vhi else v)
-        w1 = np.array([vx if vx == vx else z[0], self._psi_m, r if r == r else z[3],
-                       ax if ax == ax else 0.0, delta if delta == delta else 0.0])
-        w0 = self._w_prev if self._w_prev is not None else w1
-        self._w_prev = w1
-        if h <= 0.0:
-            return
-        tl = self._t_last
-        live = r == r and vx == vx and t_s - min(tl[0], tl[1]) <= self._hold
-        F, G, b = (Fs, Gs, bounds[0]) if live else (Fp, Gp, bounds[1])
-        affine_rk4(z, F, G, w0, w1, v, 1.0 / v, h, max(1, math.ceil(h * b / SUBSTEP_RATE)))
+        self.step(t_s, np.array(y, dtype=float))
 
     def _values(self) -> list[float]:
-        z = self._zh
-        vy, r = float(z[1]), float(z[3])
-        vx = self._u[0]
-        v = vx if vx == vx else float(z[0])
-        return [vy, r, math.atan2(vy, v) if v > 0.0 else 0.0]
+        return self._last.tolist()
 
     def state_hat(self) -> np.ndarray:
         """Copy of ``(v_x, v_y, psi_hat, r, f_yf [kN], f_yr [kN])``: (6,) array."""

@@ -79,6 +79,99 @@ def test_pi_tracks_vy_and_the_identifiable_force_combination() -> None:
     assert corr > 0.9
 
 
+def _pi_hostile_log():
+    """The force-residual log with a yaw-rate offset (the integrated gyro passes +-pi several times
+    and is re-centred), leading rows without v_x, 20 % random dropouts, 0.6 s without v_x and r
+    (past hold_s: prediction), a repeated and an irregular time stamp."""
+    t, _, Y, _ = _truth_with_forces(T=20.0)
+    Y = Y.copy()
+    Y[:, 1] += 0.8
+    gen = np.random.default_rng(5)
+    Y[:4, 0] = np.nan
+    Y[gen.random(Y.shape) < 0.2] = np.nan
+    Y[600:660, :2] = np.nan
+    t = t.copy()
+    t[150] = t[149]
+    t[1000:] += 0.0041
+    return t, Y
+
+
+def test_pi_run_is_one_compiled_call_and_equals_stepping_bit_for_bit(monkeypatch: pytest.MonkeyPatch) -> None:
+    """run() advances the whole log in one call of the compiled kernel that step() calls per sample:
+    the estimates, the internal state (heading, unknown inputs) and the next step are the same bits,
+    from the default and from a given initial state, through re-centring, dropouts, an outage past
+    hold_s, a repeated and an irregular time stamp."""
+    import roadtruth.observers.pi_observer as module
+
+    t, Y = _pi_hostile_log()
+    calls: list[int] = []
+    kernel = module.pi_run
+
+    def counted(tt: np.ndarray, *args: object) -> None:
+        calls.append(len(tt))
+        kernel(tt, *args)
+
+    for x0 in (None, {"vy_mps": 0.2, "yaw_rate_radps": 0.05}):
+        monkeypatch.setattr(module, "pi_run", counted)
+        calls.clear()
+        obs = create("pi_observer_nguyen", SEDAN)
+        tr = obs.run(t, Y, x0)
+        assert calls == [len(t)]   # one compiled call for the whole run
+        monkeypatch.undo()
+        ref = create("pi_observer_nguyen", SEDAN)
+        ref.reset(float(t[0]), x0)
+        want = np.array([ref.step(float(t[i]), Y[i]).x for i in range(len(t))])
+        assert tr.x.tobytes() == want.tobytes()
+        assert obs.state_hat().tobytes() == ref.state_hat().tobytes()
+        assert obs.unknown_input_N() == ref.unknown_input_N()
+        assert np.all(np.isfinite(tr.x)) and abs(obs.state_hat()[2]) < math.pi + 0.1   # re-centred heading
+        nxt, nref = obs.step(float(t[-1]) + 0.01, Y[-1]), ref.step(float(t[-1]) + 0.01, Y[-1])
+        assert nxt.x.tobytes() == nref.x.tobytes() and not np.array_equal(nxt.x, tr.x[-1])
+
+
+def test_pi_before_v_x_holds_x0_and_stale_inputs_predict_on_the_model() -> None:
+    """Before the first v_x sample the estimate is x0; a row without samples at a repeated time stamp
+    changes nothing; with r older than hold_s the observer integrates its model (1.55) with the leaky
+    force states (mu' = -kappa mu) and the first-order-held (a_x, delta), equal to solve_ivp; with
+    fresh r the same log is corrected away from it."""
+    t, X, Y, _ = _truth_with_forces(T=5.0)
+    Y = Y.copy()
+    Y[:3, 0] = np.nan
+    Y[40] = np.nan
+    t = t.copy()
+    t[40] = t[39]
+    x0 = {"vy_mps": 0.2, "yaw_rate_radps": 0.05}
+    fresh = create("pi_observer_nguyen", SEDAN).run(t, Y, x0).x
+    np.testing.assert_array_equal(fresh[:3], np.tile([0.2, 0.05, 0.0], (3, 1)))
+    assert fresh[40].tobytes() == fresh[39].tobytes()
+    Ys = Y.copy()
+    Ys[3:, 1] = np.nan                     # r only before the start: stale from the first step
+    obs = create("pi_observer_nguyen", SEDAN, hold_s=1e-6)
+    stale = obs.run(t, Ys, x0).x
+    model, kappa = vehicle_model(SEDAN), obs.options["kappa"]
+    held = Y.copy()                        # the zero-order hold of the samples
+    for k in range(1, len(t)):
+        held[k] = np.where(np.isnan(Y[k]), held[k - 1], Y[k])
+    z = np.array([Y[3, 0], 0.2, 0.0, 0.05, 0.0, 0.0])
+    ref = []
+    for k in range(3, len(t)):
+        if t[k] > t[k - 1]:
+            A = model.A(min(max(held[k, 0], 5.0), 30.0))
+            # first-order hold from the previous row's (a_x, delta); constant on the first step
+            u0, u1, t0, t1 = held[max(k - 1, 3), 2:], held[k, 2:], t[k - 1], t[k]
+
+            def rhs(s, zz, A=A, u0=u0, u1=u1, t0=t0, t1=t1):
+                u = u0 + (s - t0) / (t1 - t0) * (u1 - u0)
+                return np.concatenate([A @ zz[:4] + model.Bu @ u + model.Bmu @ zz[4:], -kappa * zz[4:]])
+
+            z = solve_ivp(rhs, (t0, t1), z, rtol=1e-11, atol=1e-13).y[:, -1]
+        ref.append(z[[1, 3]])
+    ref = np.array(ref)
+    err = np.abs(stale[3:, :2] - ref).max()
+    assert err < 5e-6 * np.abs(ref).max(), err   # RK4 sub-steps vs solve_ivp
+    assert np.abs(fresh[3:, :2] - ref).max() > 1e3 * err
+
+
 def test_algebraic_vy_is_exact_on_lane_kinematics_and_causal() -> None:
     """Lane kinematics with the heading at the look-ahead point: y_L' = v_x sin psi_L + (v_y + l_s r)
     cos psi_L. On exact 100 Hz samples the estimate converges to v_y; the printed (26) is biased by
