@@ -131,6 +131,26 @@ def test_a_figure_draws_every_sample_of_a_short_run_and_the_error_as_estimate_mi
     assert isinstance(spec["data"][-1]["y"], dict) and "minus" in spec["data"][-1]["y"]
 
 
+def test_the_unscored_end_is_shaded_and_a_centred_band_is_written_once():
+    t = np.round(np.arange(0.0, 6.0, 0.01), 10)
+    beta = 0.05 * np.sin(t)
+    est = beta + 0.003
+    sigma = 0.01 + 0.02 * np.exp(-t)
+    series = ObserverSeries("kf", t, est, est - 2 * sigma, est + 2 * sigma)
+    spec = state_figure("beta_rad", pd.DataFrame({"t_s": t, "beta_rad": beta}), [series], {},
+                        [{"t_s": 4.0, "label": "spun out"}], 4.0, "spun out")
+    rect = [s for s in spec["layout"]["shapes"] if s["type"] == "rect"]
+    assert len(rect) == 1 and rect[0]["x0"] == 4.0 and rect[0]["x1"] == pytest.approx(5.99)
+    fig = expand_figure(json.loads(json.dumps(spec)))
+    assert "not scored (spun out)" in [a["text"] for a in fig["layout"]["annotations"]]
+    tr = {d["name"]: d for d in fig["data"]}
+    deg = 180 / np.pi
+    assert np.max(np.abs(np.array(tr["kf lower bound"]["y"]) - (est - 2 * sigma) * deg)) < 2e-3
+    assert np.max(np.abs(np.array(tr["kf bounds"]["y"]) - (est + 2 * sigma) * deg)) < 2e-3
+    assert tr["kf bounds"]["fill"] == "tonexty" and list(tr)[1:3] == ["kf lower bound", "kf bounds"]
+    assert spec["data"][1]["y"] == {"around": [3, 0], "side": -1}  # value - half width, half width once
+
+
 def test_a_long_run_keeps_its_spikes_in_the_estimate_and_in_the_error():
     rng = np.random.default_rng(5)
     n = 100_000
@@ -165,7 +185,7 @@ def test_the_page_of_a_run_has_one_figure_per_scored_state_and_path_and_each_exp
     for fid, body in specs:
         fig = expand_figure(json.loads(body))
         for tr in fig["data"]:
-            if tr.get("mode") == "lines":
+            if tr.get("mode", "lines") == "lines":
                 assert len(tr["x"]) == len(tr["y"]) > 1, (fid, tr.get("name"))
     assert "The metrics are not read from the plots: they are computed during the run from every simulation step" in text
 
@@ -182,16 +202,23 @@ def test_the_pages_decoder_and_the_python_twin_agree(tmp_path: Path):
     lo, hi = est - 0.02, est + 0.02
     short = ObserverSeries("sparse", t[::7], est[::7], lo[::7], hi[::7])  # off the truth's grid: explicit error
     spec = state_figure("beta_rad", pd.DataFrame({"t_s": t, "beta_rad": beta}),
-                        [ObserverSeries("obs", t, est, lo, hi), short], {}, [])
+                        [ObserverSeries("obs", t, est, lo, hi), short], {},
+                        [{"t_s": 1.0, "label": "steer"}, {"t_s": 2.0, "label": "spun out"}], 2.5, "spun out")
     (tmp_path / "spec.json").write_text(json.dumps(spec))
     (tmp_path / "run.js").write_text(decoder + "\nvar fs = require('fs');\n"
                                      "var spec = expandFigure(JSON.parse(fs.readFileSync(process.argv[2], 'utf8')));\n"
                                      "process.stdout.write(JSON.stringify(spec.data.map(function (t) {"
-                                     " return {x: t.x, y: t.y, x0: t.x0, dx: t.dx}; })));\n")
+                                     " return {x: t.x, y: t.y, x0: t.x0, dx: t.dx}; })"
+                                     ".concat([spec.layout.annotations])));\n")
     out = subprocess.run(["node", str(tmp_path / "run.js"), str(tmp_path / "spec.json")],
                          capture_output=True, text=True, check=True, timeout=60)
     js_data = json.loads(out.stdout)
-    py_data = expand_figure(spec)["data"]
+    js_notes = js_data.pop()
+    py = expand_figure(spec)
+    py_data = py["data"]
+    assert js_notes == py["layout"]["annotations"]
+    assert [a["text"] for a in js_notes] == ["<b>1</b>", "<b>2</b>", "not scored (spun out)"]
+    assert js_notes[0]["bgcolor"] == "rgba(255,255,255,0.85)" and js_notes[2]["borderwidth"] == 0
     assert len(js_data) == len(py_data) >= 6
     for a, b in zip(js_data, py_data, strict=True):
         ya = np.array([np.nan if v is None else v for v in a["y"]], float)

@@ -29,6 +29,9 @@ from roadtruth.harness.report.styles import (  # noqa: F401 - re-exported: other
     swatch_svg,
 )
 
+#: From this many points on, plotly draws a scatter trace as lines alone by default.
+_LINES_ONLY = 20
+
 #: Smallest span an axis is focused on, per display unit (so a near-constant truth does not zoom
 #: the axis onto sensor noise).
 _MIN_SPAN = {"deg": 1.0, "deg/s": 2.0, "m/s": 0.2, "m/s²": 0.5, "kN": 0.5, "m": 0.5, "1/m": 1e-3}
@@ -84,22 +87,38 @@ def _event_marks(events: list[dict[str, Any]], t_span: tuple[float, float]) -> t
                        "line": {"color": colour, "width": 1.2 if truth_event else 1, "dash": "dot"}})
         row = 1 - row if (t - last_t) / width < 0.05 else 0
         last_t = t
-        notes.append({"x": t, "xref": "x", "y": 1.0 + 0.055 * row, "yref": "paper", "yanchor": "bottom",
-                      "text": f"<b>{k}</b>", "hovertext": f"{t:g} s — {label}", "showarrow": False,
-                      "font": {"size": 10, "color": colour}, "bgcolor": "rgba(255,255,255,0.85)",
-                      "bordercolor": colour, "borderwidth": 1, "borderpad": 1})
+        # The keys every event number shares are the figure's ``note_defaults`` (EVENT_NOTE).
+        notes.append({"x": t, "y": 1.0 + 0.055 * row, "text": f"<b>{k}</b>", "hovertext": f"{t:g} s — {label}",
+                      "font": {"size": 10, "color": colour}, "bordercolor": colour})
     return shapes, notes
+
+
+#: What every event number above a time plot shares (written once per figure as ``note_defaults``).
+EVENT_NOTE: dict[str, Any] = {"xref": "x", "yref": "paper", "yanchor": "bottom", "showarrow": False,
+                              "bgcolor": "rgba(255,255,255,0.85)", "borderwidth": 1, "borderpad": 1}
 
 
 def _quantiles(v: np.ndarray, qs: Sequence[float]) -> np.ndarray:
     """``np.quantile(v, qs)`` (its default linear interpolation) of a non-empty finite ``v`` from one
     sort: the same numbers at a fraction of its per-call cost, which two thousand traces felt."""
-    s = np.sort(v)
+    return _sorted_quantiles(np.sort(v), qs)
+
+
+def _sorted_quantiles(s: np.ndarray, qs: Sequence[float]) -> np.ndarray:
     pos = np.asarray(qs, dtype=float) * (s.size - 1)
     lo = np.floor(pos).astype(np.int64)
     hi = np.minimum(lo + 1, s.size - 1)
-    frac = pos - lo
-    return s[lo] + (s[hi] - s[lo]) * frac
+    return s[lo] + (s[hi] - s[lo]) * (pos - lo)
+
+
+def _spread(e: np.ndarray) -> tuple[np.ndarray, float, float] | None:
+    """The sorted finite values of ``e`` and its smallest and largest value ±inf included (what
+    ``nanmin``/``nanmax`` give), from one sort; None when no value is finite."""
+    s = np.sort(e[~np.isnan(e)])
+    a, b = int(np.searchsorted(s, -np.inf, side="right")), int(np.searchsorted(s, np.inf, side="left"))
+    if b <= a:
+        return None
+    return s[a:b], float(s[0]), float(s[-1])
 
 
 def focus_range(truth: np.ndarray, estimates: list[np.ndarray], unit: str) -> tuple[list[float], bool]:
@@ -108,7 +127,8 @@ def focus_range(truth: np.ndarray, estimates: list[np.ndarray], unit: str) -> tu
     bound of ±100° or one drifting observer does not flatten every other line). Returns the range
     and whether some estimate lies outside it (the page then offers "show all")."""
     tv = truth[np.isfinite(truth)]
-    qs = [_quantiles(e[np.isfinite(e)], FOCUS_QUANTILES) for e in estimates if np.isfinite(e).any()]
+    spreads = [sp for sp in map(_spread, estimates) if sp is not None]
+    qs = [_sorted_quantiles(sp[0], FOCUS_QUANTILES) for sp in spreads]
     if tv.size:
         lo, hi = float(tv.min()), float(tv.max())
     elif qs:
@@ -121,18 +141,19 @@ def focus_range(truth: np.ndarray, estimates: list[np.ndarray], unit: str) -> tu
         lo, hi = min(lo, max(float(q[0]), cap_lo)), max(hi, min(float(q[1]), cap_hi))
     pad = 0.06 * max(hi - lo, span)
     lo, hi = lo - pad, hi + pad
-    clipped = any(np.nanmin(e) < lo or np.nanmax(e) > hi for e in estimates if np.isfinite(e).any())
+    clipped = any(sp[1] < lo or sp[2] > hi for sp in spreads)
     return [lo, hi], clipped
 
 
 def _error_range(errors: list[np.ndarray], truth_span: float, unit: str) -> tuple[list[float], bool]:
     """Symmetric error axis: the largest 99 % quantile of |error|, capped at the focus span."""
-    q = [float(_quantiles(np.abs(e[np.isfinite(e)]), FOCUS_QUANTILES[1:])[0]) for e in errors if np.isfinite(e).any()]
+    spreads = [sp for sp in (_spread(np.abs(x)) for x in errors) if sp is not None]
+    q = [float(_sorted_quantiles(sp[0], FOCUS_QUANTILES[1:])[0]) for sp in spreads]
     if not q:
         return [-1.0, 1.0], False
     cap = FOCUS_SPANS * max(truth_span, _MIN_SPAN.get(unit, 0.0), 1e-12)
     e = 1.1 * max(min(max(q), cap), 1e-12)
-    clipped = any(np.nanmax(np.abs(x)) > e for x in errors if np.isfinite(x).any())
+    clipped = any(sp[2] > e for sp in spreads)
     return [-e, e], clipped
 
 
@@ -160,8 +181,11 @@ def state_figure(
     for one in series:
         err = np.empty(0)
         if t_truth.size:
-            j = np.clip(np.searchsorted(t_truth, one.t_s + 1e-9, side="right") - 1, 0, t_truth.size - 1)
-            err = one.value - y_truth[j]
+            if one.t_s.size == t_truth.size and np.array_equal(one.t_s, t_truth):
+                err = one.value - y_truth
+            else:
+                j = np.clip(np.searchsorted(t_truth, one.t_s + 1e-9, side="right") - 1, 0, t_truth.size - 1)
+                err = one.value - y_truth[j]
             if state.endswith("_rad"):
                 err = np.pi - np.mod(np.pi - err, 2 * np.pi)
             err = err * scale
@@ -190,18 +214,28 @@ def state_figure(
     for one, err in zip(series, errors, strict=True):
         obs, t, v, lo, hi = one.observer, one.t_s, one.value, one.lo, one.hi
         style = styles.get(obs) or observer_style(obs)
+        idx = envelope_indices(t, v)
         if np.isfinite(lo).any() and np.isfinite(hi).any():
             # The band as two lines, the upper one filled down to the lower ("tonexty": the trace
             # before it on the same axes), each its own envelope.
-            ilo, ihi = envelope_indices(t, lo), envelope_indices(t, hi)
             common = {"legendgroup": str(obs), "showlegend": False, "hoverinfo": "skip", "mode": "lines",
                       "line": {"width": 0}}
-            traces.append({**common, "name": f"{obs} lower bound", **pool.times(t, ilo),
-                           "y": compact_values(lo[ilo] * scale, exp)})
-            traces.append({**common, "name": f"{obs} bounds", **pool.times(t, ihi),
-                           "y": compact_values(hi[ihi] * scale, exp), "fill": "tonexty",
+            half = _half_width(v, lo, hi) if idx.size == t.size else None
+            if half is not None:
+                # value ± half width (a variance's ±2σ): the half width is written once, the page
+                # adds it to the estimate drawn two traces on.
+                j = len(pool.arrays)
+                pool.arrays.append(compact_values(half * scale, exp))
+                band = len(traces) + 2
+                ylo, yhi = {"around": [band, j], "side": -1}, {"around": [band, j], "side": 1}
+                xlo = xhi = pool.times(t)
+            else:
+                ilo, ihi = envelope_indices(t, lo), envelope_indices(t, hi)
+                ylo, yhi = compact_values(lo[ilo] * scale, exp), compact_values(hi[ihi] * scale, exp)
+                xlo, xhi = pool.times(t, ilo), pool.times(t, ihi)
+            traces.append({**common, "name": f"{obs} lower bound", **xlo, "y": ylo})
+            traces.append({**common, "name": f"{obs} bounds", **xhi, "y": yhi, "fill": "tonexty",
                            "fillcolor": _alpha(style.colour, 0.13)})
-        idx = envelope_indices(t, v)
         traces.append({"mode": "lines", "name": str(obs), "legendgroup": str(obs), **pool.times(t, idx),
                        "y": compact_values(v[idx] * scale, exp), "line": _line(style, 1.4)})
         if not err.size:
@@ -215,7 +249,19 @@ def state_figure(
         else:
             ie = envelope_indices(t, err)
             traces.append({**error, **pool.times(t, ie), "y": compact_values(err[ie], exp_err)})
+    if t_truth.size >= _LINES_ONLY and all(o.t_s.size >= _LINES_ONLY for o in series):
+        for tr in traces:  # plotly draws lines alone from 20 points on: "mode" is its default
+            del tr["mode"]
     shapes, notes = _event_marks(events, t_span)
+    if scored_until_s is not None and math.isfinite(scored_until_s) and scored_until_s < t_span[1]:
+        shapes.append({"type": "rect", "xref": "x", "yref": "paper", "x0": scored_until_s, "x1": t_span[1],
+                       "y0": 0, "y1": 1, "fillcolor": "rgba(120,120,120,0.16)", "line": {"width": 0},
+                       "layer": "below"})
+        notes.append({"x": scored_until_s, "xref": "x", "y": 0.99, "yref": "paper", "xanchor": "left",
+                      "yanchor": "top", "showarrow": False, "font": {"size": 10, "color": "#475467"},
+                      "bgcolor": "rgba(0,0,0,0)", "borderwidth": 0,
+                      "text": "not scored" + (f" ({unscored_reason})" if unscored_reason else ""),
+                      "hovertext": f"from {scored_until_s:g} s on: drawn, not scored"})
     label = state_label(state)
     layout = {
         "height": 450, "margin": {"l": 56, "r": 8, "t": 58, "b": 40},
@@ -239,7 +285,29 @@ def state_figure(
                  "args": [{"yaxis.autorange": True, "yaxis2.autorange": True}]},
             ]}],
     }
-    return {"data": traces, "layout": layout, "arrays": pool.arrays, "meta": {"clipped": bool(clipped or e_clipped)}}
+    spec: dict[str, Any] = {"data": traces, "layout": layout, "arrays": pool.arrays, "note_defaults": EVENT_NOTE,
+                            "meta": {"clipped": bool(clipped or e_clipped)}}
+    if t_truth.size:
+        grid = {k: v for k, v in pool.times(t_truth).items() if k in ("x0", "dx")}
+        if grid:  # the truth's time grid: what a trace without its own x is drawn on
+            spec["grid"] = grid
+            for tr in traces:
+                if tr.get("x0") == grid["x0"] and tr.get("dx") == grid["dx"]:
+                    del tr["x0"], tr["dx"]
+    return spec
+
+
+def _half_width(v: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray | None:
+    """The half width of a band centred on the estimate (``lo = v - h``, ``hi = v + h`` to rounding,
+    missing together), NaN where the band is missing; None for any other band."""
+    finite = np.isfinite(lo)
+    if not np.array_equal(finite, np.isfinite(hi)) or not np.isfinite(v[finite]).all():
+        return None
+    h = np.where(finite, (hi - lo) / 2, np.nan)
+    scale = np.maximum(np.abs(v), np.abs(h))
+    if np.any(np.abs((hi - v) - h)[finite] > 1e-9 * scale[finite] + 1e-300):
+        return None
+    return h
 
 
 def _line(style: LineStyle, width: float) -> dict[str, Any]:

@@ -17,11 +17,16 @@ written once (``ArrayPool``). ``report.js`` expands these compact arrays before 
 
 Compact array forms (a JSON object in place of a plotly data array):
 
-- ``{"dk": text, "exp": e}``: value ``i`` is ``k_i * 10**e``, where ``text`` holds ``k0, k1 - k0, …``
-  (``varint_text``: a step of at most ±15 grid units is one character);
+- ``{"k0": k0, "dk": text, "exp": e}``: value ``i`` is ``k_i * 10**e``, where ``text`` holds the steps
+  ``k1 - k0, k2 - k1, …`` (``varint_text``: a step of at most ±15 grid units is one character), or
+  with ``"order": 2`` the differences of those steps (the first step, then each change of step);
 - ``{"dk": [...], "step": dt, "offset": t0}``: value ``i`` is ``t0 + k_i * dt`` (a time grid);
 - either with ``"nan": [[start, length], ...]``: those samples are missing (a gap in the line);
 - ``{"ref": j}``: array ``j`` of the figure's ``arrays`` list;
+- a trace without ``x`` nor ``x0`` is drawn on the figure's ``grid`` (``x0``/``dx``: the truth's time
+  grid), and every annotation takes the keys of the figure's ``note_defaults`` it does not set;
+- ``{"around": [a, j], "side": s}`` (a ``y`` only): trace ``a``'s ``y`` plus ``s`` (±1) times array ``j``
+  (a band centred on its estimate, as value ± half width);
 - ``{"minus": [a, b], "wrap": w}`` (a ``y`` only): trace ``a``'s ``y`` minus trace ``b``'s, sample by
   sample, wrapped into ``(-w/2, w/2]`` when ``w`` is given (an error drawn from its estimate and the
   truth on the same time grid, instead of a third copy of the numbers).
@@ -105,6 +110,7 @@ def _gap_runs(missing: np.ndarray) -> list[list[int]]:
 #: The 64 characters of a varint text, each 5 bits of a number and a "more follows" bit (32).
 _ALPHABET = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789-_"
 _CODE = {c: i for i, c in enumerate(_ALPHABET.decode("ascii"))}
+_ALPHABET_CODES = np.frombuffer(_ALPHABET, dtype=np.uint8)
 
 
 def varint_text(d: np.ndarray) -> str:
@@ -114,17 +120,27 @@ def varint_text(d: np.ndarray) -> str:
     d = np.asarray(d, dtype=np.int64)
     if not d.size:
         return ""
-    z = ((d << 1) ^ (d >> 63)).astype(np.uint64)
+    z = (d << 1) ^ (d >> 63)
+    top, g = int(z.max()), 1
+    while top >> (5 * g):
+        g += 1
+    if g == 1:
+        return _ALPHABET_CODES[z].tobytes().decode("ascii")
+    # Characters per number, where each number's characters start, then one pass per 5 bits
+    # (a few: the steps of a drawn line are small).
     groups = np.ones(z.size, dtype=np.int64)
-    rest = z >> np.uint64(5)
-    while rest.any():
-        groups += rest > 0
-        rest >>= np.uint64(5)
-    j = np.arange(int(groups.max()), dtype=np.uint64)
-    digits = ((z[:, None] >> (np.uint64(5) * j[None, :])) & np.uint64(31)).astype(np.uint8)
-    digits += np.where(j[None, :].astype(np.int64) < (groups[:, None] - 1), 32, 0).astype(np.uint8)
-    used = j[None, :].astype(np.int64) < groups[:, None]
-    return np.frombuffer(_ALPHABET, dtype=np.uint8)[digits[used]].tobytes().decode("ascii")
+    for i in range(1, g):
+        groups += z >= (1 << (5 * i))
+    starts = np.cumsum(groups) - groups
+    out = np.empty(int(starts[-1] + groups[-1]), dtype=np.int64)
+    out[starts] = z & 31
+    rest = z >> 5
+    for i in range(1, g):
+        sel = np.flatnonzero(groups > i)
+        out[starts[sel] + i - 1] |= 32
+        out[starts[sel] + i] = rest[sel] & 31
+        rest = rest >> 5
+    return _ALPHABET_CODES[out].tobytes().decode("ascii")
 
 
 def read_varint_text(text: str) -> np.ndarray:
@@ -147,7 +163,16 @@ def _deltas(k: np.ndarray, missing: np.ndarray) -> dict[str, Any]:
         filled = np.where(missing, 0, k)
         last = np.maximum.accumulate(np.where(missing, -1, np.arange(k.size)))
         k = np.where(last >= 0, filled[np.maximum(last, 0)], 0)
-    out: dict[str, Any] = {"dk": varint_text(np.diff(k, prepend=np.int64(0)))}
+    out: dict[str, Any] = {"dk": ""}
+    if k.size:
+        d1 = np.diff(k)
+        d2 = np.diff(d1, prepend=np.int64(0))
+        # A smooth line's steps change little: their own differences are shorter to write
+        # (compared by size, not written twice: the sum of magnitudes follows the text's length).
+        if np.abs(d2).sum() < np.abs(d1).sum():
+            out = {"k0": int(k[0]), "dk": varint_text(d2), "order": 2}
+        else:
+            out = {"k0": int(k[0]), "dk": varint_text(d1)}
     runs = _gap_runs(missing)
     if runs:
         out["nan"] = runs
@@ -228,7 +253,10 @@ def expand_array(a: Any, arrays: list[Any] | None = None) -> Any:
         return expand_array((arrays or [])[a["ref"]])
     if not isinstance(a, dict) or "dk" not in a:
         return a
-    k = np.cumsum(read_varint_text(a["dk"]))
+    steps = read_varint_text(a["dk"])
+    if a.get("order") == 2:
+        steps = np.cumsum(steps)
+    k = np.cumsum(np.r_[np.int64(a["k0"]), steps]) if "k0" in a else np.empty(0, np.int64)
     if "step" in a:
         v = a.get("offset", 0.0) + k * float(a["step"])
     else:
@@ -244,13 +272,23 @@ def expand_figure(spec: dict[str, Any]) -> dict[str, Any]:
     """A figure with every compact array expanded to a plain list and the ``x0``/``dx`` of a trace
     written out as its ``x`` (what plotly draws), the same as ``report.js`` does before drawing."""
     arrays = spec.get("arrays", [])
+    grid = spec.get("grid", {})
     data = []
     for tr in spec["data"]:
         tr = dict(tr)
+        if grid and "x" not in tr and "x0" not in tr:
+            tr.update(grid)
         for key in ("x", "y"):
-            if key in tr and not (isinstance(tr[key], dict) and "minus" in tr[key]):
+            if key in tr and not (isinstance(tr[key], dict) and ("minus" in tr[key] or "around" in tr[key])):
                 tr[key] = expand_array(tr[key], arrays)
         data.append(tr)
+    for tr in data:
+        y = tr.get("y")
+        if isinstance(y, dict) and "around" in y:
+            a, j = y["around"]
+            c = np.array([np.nan if v is None else v for v in expand_array(data[a]["y"], arrays)], float)
+            h = np.array([np.nan if v is None else v for v in expand_array({"ref": j}, arrays)], float)
+            tr["y"] = [None if not math.isfinite(v) else v for v in (c + y["side"] * h).tolist()]
     for tr in data:
         y = tr.get("y")
         if isinstance(y, dict) and "minus" in y:
@@ -263,4 +301,8 @@ def expand_figure(spec: dict[str, Any]) -> dict[str, Any]:
     for tr in data:
         if "x0" in tr and "x" not in tr and isinstance(tr.get("y"), list):
             tr["x"] = (tr["x0"] + tr.get("dx", 1.0) * np.arange(len(tr["y"]))).tolist()
-    return {**{k: v for k, v in spec.items() if k != "arrays"}, "data": data}
+    layout = spec.get("layout", {})
+    if spec.get("note_defaults") and layout.get("annotations"):
+        layout = {**layout, "annotations": [{**spec["note_defaults"], **a} for a in layout["annotations"]]}
+    return {**{k: v for k, v in spec.items() if k not in ("arrays", "grid", "note_defaults")}, "data": data,
+            "layout": layout}

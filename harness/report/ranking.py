@@ -81,8 +81,9 @@ def rank_state(metrics: pd.DataFrame, state: str, column: str, sense: str,
     if column in sm.columns:
         values = pd.to_numeric(sm[column], errors="coerce").to_numpy(float)
         by_scenario: dict[str, dict[str, float]] = {}
-        for scen, obs, status, v in zip(sm["scenario"].astype(str), sm["observer"].astype(str),
-                                        sm["status"].astype(str), values, strict=True):
+        # Lists, not the columns: iterating a pandas string column boxes every cell (slow).
+        for scen, obs, status, v in zip(sm["scenario"].astype(str).tolist(), sm["observer"].astype(str).tolist(),
+                                        sm["status"].astype(str).tolist(), values.tolist(), strict=True):
             if obs in per_obs and status_kind(status) == OK and math.isfinite(v):
                 by_scenario.setdefault(scen, {})[obs] = badness(v * scale, sense)
         for scen in scenarios:

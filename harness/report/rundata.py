@@ -309,8 +309,19 @@ class ScenarioFiles:
         if self._is_long():
             return observer_series(estimates_long(self._long_table, states=[state], categorical=True), state)
         if self._whole_csv is not None:
-            return wide_series(self._whole_csv, state)
+            whole = self._whole_csv
+            return wide_series({"t_s": whole["t_s"], **{c: whole[c] for c in self._whole_csv_states.get(state, [])}},
+                               state)
         return wide_series(self._state_columns(state_columns(header, [state])), state)
+
+    @cached_property
+    def _whole_csv_states(self) -> dict[str, list[str]]:
+        """state -> the estimate columns (values, bounds, variances) of that state in the whole CSV
+        table, grouped once (not once per figure)."""
+        out: dict[str, list[str]] = {}
+        for (_, state), cols in estimate_columns(list(self._whole_csv or {})).items():
+            out.setdefault(state, []).extend(cols.values())
+        return out
 
     @cached_property
     def _whole_csv(self) -> dict[str, np.ndarray] | None:

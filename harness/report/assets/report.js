@@ -132,7 +132,10 @@
     if (a && a.ref !== undefined) a = arrays[a.ref];
     if (!a || Array.isArray(a) || a.dk === undefined) return a;
     if (a._values) return a._values;  // a shared array is expanded once
-    var dk = readVarints(a.dk), n = dk.length, out = new Array(n), k = 0, i;
+    var steps = readVarints(a.dk), i, acc = 0;
+    if (a.order === 2) for (i = 0; i < steps.length; i++) { acc += steps[i]; steps[i] = acc; }
+    var dk = a.k0 === undefined ? [] : [0].concat(steps);
+    var n = dk.length, out = new Array(n), k = a.k0 || 0;
     var p = Math.pow(10, Math.abs(a.exp || 0)), off = a.offset || 0;
     for (i = 0; i < n; i++) {
       k += dk[i];
@@ -144,10 +147,19 @@
   }
 
   function expandFigure(spec) {
-    var arrays = spec.arrays || [];
+    var arrays = spec.arrays || [], grid = spec.grid;
+    if (spec.note_defaults && spec.layout.annotations) {
+      spec.layout.annotations = spec.layout.annotations.map(function (a) { return Object.assign({}, spec.note_defaults, a); });
+    }
     spec.data.forEach(function (t) {
+      if (grid && !("x" in t) && !("x0" in t)) { t.x0 = grid.x0; t.dx = grid.dx; }
       if ("x" in t) t.x = expandArray(t.x, arrays);
-      if ("y" in t && !(t.y && t.y.minus)) t.y = expandArray(t.y, arrays);
+      if ("y" in t && !(t.y && (t.y.minus || t.y.around))) t.y = expandArray(t.y, arrays);
+    });
+    spec.data.forEach(function (t) {
+      if (!(t.y && t.y.around)) return;
+      var c = spec.data[t.y.around[0]].y, h = expandArray({ ref: t.y.around[1] }, arrays), s = t.y.side;
+      t.y = c.map(function (v, i) { return v === null || h[i] === null ? null : v + s * h[i]; });
     });
     spec.data.forEach(function (t) {
       if (!(t.y && t.y.minus)) return;

@@ -91,10 +91,12 @@ def state_rows(run: RunData, state: str) -> pd.DataFrame:
     declared = {str(o.get("name")) for o in run.run.get("observers", [])
                 if isinstance(o, dict) and state in (o.get("states") or [])}
     extra = m[(m["state"] == "") & m["observer"].astype(str).isin(declared)]
-    have = set(zip(m.loc[m["state"] == state, "observer"].astype(str), m.loc[m["state"] == state, "scenario"].astype(str),
-                   strict=True))
-    extra = extra[[(str(o), str(sc)) not in have for o, sc in zip(extra["observer"], extra["scenario"], strict=True)]]
-    run.memo[key] = pd.concat([m[m["state"] == state], extra.assign(state=state)], ignore_index=True)
+    rows = m[m["state"] == state]
+    # Lists, not the columns: iterating a pandas string column boxes every cell (slow).
+    have = set(zip(rows["observer"].astype(str).tolist(), rows["scenario"].astype(str).tolist(), strict=True))
+    extra = extra[[(str(o), str(sc)) not in have
+                   for o, sc in zip(extra["observer"].tolist(), extra["scenario"].tolist(), strict=True)]]
+    run.memo[key] = pd.concat([rows, extra.assign(state=state)], ignore_index=True)
     return run.memo[key]
 
 
