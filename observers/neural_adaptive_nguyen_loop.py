@@ -1,23 +1,24 @@
-"""Compiled whole-run loop of the neural adaptive observers of Nguyen (:mod:`roadtruth.observers.neural_adaptive_nguyen`).
+"""The compiled kernel of the neural adaptive observers of Nguyen (:mod:`roadtruth.observers.neural_adaptive_nguyen`).
 
-:func:`nao_run` is ``NeuralAdaptiveNguyen._advance`` over a whole run, teacher UIO included
-(``NguyenUIO._advance`` of :mod:`roadtruth.observers.uio_nguyen`, with its own compiled :func:`affine_rk4`),
-written on arrays operation for operation in the same order, so that ``run()`` equals stepping
-``step()`` one sample at a time bit for bit (``tests/test_observers_nao_compiled.py``); ``step()``
-stays the plain-Python reference. What makes it fast is not a different algorithm but the layout:
+:func:`nao_run` is the observers' whole per-sample update, teacher UIO included (the regularised
+UIO of :mod:`roadtruth.observers.uio_nguyen`, with its compiled :func:`affine_rk4`): latching the
+inputs, the integrated gyro and its re-centring, the Euler sub-steps of the state, the loss
+gradient and forward sensitivity, Adam and the ensemble queue, on arrays carried between calls.
+``NeuralAdaptiveNguyen.step()`` calls it with one sample and ``run()`` with the whole log, so both
+execute the same compiled code on the same state and agree bit for bit
+(``tests/test_observers_nao_compiled.py``). What makes it fast is the layout:
 
 - one fused loop over the 1282 parameters updates the loss gradient (1.45)-(1.47) and the forward
   sensitivity ``S`` (1.48)-(1.50) together, with the 4x4 closed-loop matrix and ``B_mu`` held in
-  scalars, so LLVM vectorises it across parameters (each parameter's sum keeps its order: no
-  reassociation, the bits do not change);
+  scalars, so LLVM vectorises it across parameters;
 - the backward pass of the network runs its inner loops over one contiguous index (row views),
   which LLVM vectorises;
-- Adam is the step's own ``adam_step`` (one compiled function for both paths);
 - the newest queue snapshot of the ensemble (1.51) is the network being trained (a snapshot is
   taken right after each Adam step), so its output is the one the training step computes.
 
-The matrix-vector products the Python path does with numpy's ``@`` go through ``np.dot`` here: both
-call the same BLAS ``gemv``, whose fused multiply-adds a hand-written sum would not reproduce.
+The matrix-vector products of the ensemble correction and the teacher's ``Q y`` go through
+``np.dot`` (BLAS ``gemv``), whose fused multiply-adds a hand-written sum would not reproduce; they
+are kept so that the estimates stay those of the earlier numpy implementation to the bit.
 
 numba caches each kernel per source file: after editing this file (or the kernels it calls in
 ``observers/uio_nguyen.py``) delete ``observers/__pycache__/*.nbi, *.nbc``.
@@ -26,19 +27,11 @@ numba caches each kernel per source file: after editing this file (or the kernel
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from roadtruth.harness.truth.tire import jit
-from roadtruth.observers.neural_adaptive_nguyen import adam_step
 from roadtruth.observers.uio_nguyen import SUBSTEP_RATE, TWO_PI, affine_rk4
-
-if TYPE_CHECKING:
-    from collections.abc import Mapping
-
-    from roadtruth.observers.base import EstimateTrack
-    from roadtruth.observers.neural_adaptive_nguyen import NeuralAdaptiveNguyen
 
 H = 32                  # hidden width of mu_theta (4-32-32-2)
 O1 = 0                  # offsets of W1 (32x4), b1, W2 (32x32), b2, W3 (2x32), b3 in theta
@@ -47,6 +40,28 @@ O3 = O2 + H
 O4 = O3 + H * H
 O5 = O4 + H
 O6 = O5 + 2 * H
+N_STATE = 9          # length of nao_run's ``state``
+N_PAR = 10           # length of nao_run's ``par``
+
+
+@jit
+def adam_step(theta: np.ndarray, g: np.ndarray, m: np.ndarray, v: np.ndarray, t: int, lr: float, clip: float,
+              scale: float) -> None:
+    """Adam (beta = 0.9, 0.999) on ``g * scale`` clipped to norm ``clip``; ``t`` is the 1-based step."""
+    n = theta.shape[0]
+    nrm = 0.0
+    for k in range(n):
+        nrm += (g[k] * scale) ** 2
+    nrm = math.sqrt(nrm)
+    c = scale * (clip / nrm if nrm > clip else 1.0)
+    b1, b2 = 0.9, 0.999
+    for k in range(n):
+        gk = g[k] * c
+        m[k] = b1 * m[k] + (1 - b1) * gk
+        v[k] = b2 * v[k] + (1 - b2) * gk * gk
+        mh = m[k] / (1 - b1 ** t)
+        vh = v[k] / (1 - b2 ** t)
+        theta[k] -= lr * mh / (math.sqrt(vh) + 1e-8)
 
 
 @jit
@@ -310,19 +325,23 @@ def nao_run(t: np.ndarray, Y: np.ndarray, latch: np.ndarray, u: np.ndarray, fres
             eta: np.ndarray, zeta: np.ndarray, w_prev: np.ndarray, u_prev: np.ndarray, ts_state: np.ndarray,
             Fs: np.ndarray, Gs: np.ndarray, Qz: np.ndarray, Ms: np.ndarray, Gp: np.ndarray, bounds: np.ndarray,
             tpar: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``NeuralAdaptiveNguyen._advance`` + ``_values`` over a run: the (n, 3) estimates and the loss trace.
+    """The observer over ``t`` (n,) [s], ``Y`` (n, 4): the (n, 3) estimates (``vy, r, beta``) and the loss trace.
 
     In place: ``latch`` = ``(t_cur,)``, ``u``/``fresh``/``tl`` (4,) (the latch, shared with the
     teacher: both see the same samples), the network and learning arrays, ``queue`` (p, n_theta)
     ring of snapshots, ``state`` = ``(psi_m, r_prev, t_r_prev, started, adam_t, k, q_count,
-    q_head)`` and the teacher's arrays. ``model`` (3, 4, 4) = ``A0, A1, A2``; ``weights`` (p,) =
-    ``exp(-age)``; ``par`` = ``(dt_s, accumulate, learning_rate, clip, queue_size,
-    teacher_weight, v_lo, v_hi, hold_s)``.
+    q_head, needs_gain)`` and the teacher's arrays. ``model`` (3, 4, 4) = ``A0, A1, A2``;
+    ``weights`` (p,) = ``exp(-age)``; ``par`` = ``(dt_s, accumulate, learning_rate, clip,
+    queue_size, teacher_weight, v_lo, v_hi, hold_s, has_gain)``.
+
+    Without a usable gain (``has_gain = 0``, a failed design) the kernel stops at the first step
+    that needs it, sets ``needs_gain = 1`` and returns; the rows from there on are not written.
     """
     n = t.shape[0]
     out = np.empty((n, 3))
     dt_s, K, lr, clip = par[0], int(par[1]), par[2], par[3]
     p, lam, vlo, vhi, hold = int(par[4]), par[5], par[6], par[7], par[8]
+    has_gain = par[9] != 0.0
     A0, A1, A2 = model[0], model[1], model[2]
     Lzero = np.zeros((4, 3))
     Jth = np.zeros((2, theta.shape[0]))
@@ -384,6 +403,9 @@ def nao_run(t: np.ndarray, Y: np.ndarray, latch: np.ndarray, u: np.ndarray, fres
                 x[2] -= c
         if go and h > 0.0:
             live = r == r and vx == vx and ts - min(tl[0], tl[1]) <= hold
+            if live and not has_gain:
+                state[8] = 1.0
+                break
             vv = vx if vx == vx else x[0]
             vv = vlo if vlo > vv else vv
             vv = vhi if vhi < vv else vv
@@ -461,69 +483,3 @@ def nao_run(t: np.ndarray, Y: np.ndarray, latch: np.ndarray, u: np.ndarray, fres
     state[3] = 1.0 if started else 0.0
     state[4], state[5], state[6], state[7] = adam_t, k_acc, q_count, q_head
     return out, loss_trace[:n_loss].copy()
-
-
-def run_compiled(obs: NeuralAdaptiveNguyen, t: np.ndarray, Y: np.ndarray,
-                 x0: Mapping[str, float] | None) -> EstimateTrack | None:
-    """``obs.run`` through :func:`nao_run`; leaves ``obs`` and its teacher in the state stepping would.
-
-    Returns None (the caller then steps in Python, which raises where stepping raises) when the
-    observer's or the teacher's design has no usable gains: a failed design fails the run at the
-    first step that needs the gains, and only if some step does.
-    """
-    from collections import deque
-
-    from roadtruth.observers.base import EstimateTrack
-    from roadtruth.observers.lmi import DesignFailed
-
-    t = np.ascontiguousarray(t, dtype=float)
-    Y = np.ascontiguousarray(np.asarray(Y, dtype=float).reshape(len(t), len(obs.inputs)))
-    if len(t) == 0:
-        return EstimateTrack(obs.name, tuple(obs.states), t, np.zeros((0, len(obs.states))))
-    teacher = obs.teacher()
-    try:
-        Fs, Gs, Qz, Ms, Gp, bounds = teacher.constants()
-        L = np.ascontiguousarray(obs._gain(), dtype=float)
-    except DesignFailed:
-        return None
-    obs.reset(float(t[0]), x0)
-    latch = np.array([obs._t])
-    u = np.array(obs._u, dtype=float)
-    fresh = np.array(obs._fresh, dtype=np.bool_)
-    tl = np.array(obs._t_last, dtype=float)
-    p = obs._p
-    cap = max(1, p)
-    queue = np.zeros((cap, obs._theta.shape[0]))
-    state = np.array([obs._psi_m, obs._r_prev, obs._t_r_prev, 0.0, obs._adam_t, obs._k, 0.0, 0.0])
-    mdl = obs._model
-    model = np.ascontiguousarray(np.array([mdl.A0, mdl.A1, mdl.A2], dtype=float))
-    weights = np.array([math.exp(-age) for age in range(cap)])
-    par = np.array([obs._dt, obs._K, obs._lr, obs._clip, p, obs._lam, obs._vlo, obs._vhi,
-                    float(obs.options["hold_s"])])
-    w_prev = np.array(teacher._w_prev, dtype=float)
-    u_prev = np.zeros(2)
-    ts_state = np.array([teacher._psi_m, teacher._r_prev, teacher._t_r_prev, float(teacher._tracking),
-                         float(teacher._started), 0.0])
-    tpar = np.array([teacher._vlo, teacher._vhi, teacher._hold, teacher._d2])
-    eta = np.array(teacher._eta, dtype=float)
-    zeta = np.array(teacher._zeta, dtype=float)
-    X, losses = nao_run(t, Y, latch, u, fresh, tl, obs._x, obs._theta, obs._S, obs._g, obs._m, obs._v, obs._mu,
-                        queue, state, model, np.ascontiguousarray(mdl.Bu), np.ascontiguousarray(mdl.Bmu), L,
-                        obs._Ty, obs._Tu, weights, par, eta, zeta, w_prev, u_prev, ts_state, Fs, Gs, Qz, Ms, Gp,
-                        bounds, tpar)
-    obs._psi_m, obs._r_prev, obs._t_r_prev = (float(s) for s in state[:3])
-    obs._started = bool(state[3])
-    obs._adam_t, obs._k = int(state[4]), int(state[5])
-    count, head = int(state[6]), int(state[7])
-    obs._queue = deque((queue[(head - count + i) % cap].copy() for i in range(count)), maxlen=cap)
-    obs.loss_trace = losses.tolist()
-    teacher._psi_m, teacher._r_prev, teacher._t_r_prev = (float(s) for s in ts_state[:3])
-    teacher._tracking, teacher._started = bool(ts_state[3]), bool(ts_state[4])
-    teacher._u_prev = u_prev if ts_state[5] else None
-    teacher._w_prev, teacher._eta, teacher._zeta = w_prev, eta, zeta
-    for o in (obs, teacher):
-        o._t = float(latch[0])
-        o._u = u.tolist()
-        o._fresh = fresh.tolist()
-        o._t_last = tl.tolist()
-    return EstimateTrack(obs.name, tuple(obs.states), t, X)

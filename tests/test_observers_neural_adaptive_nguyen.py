@@ -11,8 +11,9 @@ import pytest
 
 from roadtruth.harness.truth.vehicle import load_vehicle
 from roadtruth.observers.lmi import DesignStatus
-from roadtruth.observers.neural_adaptive_nguyen import N_THETA, init_theta, nao_step
+from roadtruth.observers.neural_adaptive_nguyen import N_THETA, init_theta
 from roadtruth.observers.neural_adaptive_nguyen_design import lmi_141
+from roadtruth.observers.neural_adaptive_nguyen_loop import substep
 from roadtruth.observers.registry import create
 from roadtruth.observers.uio_nguyen_design import scheduling_points, vehicle_model
 
@@ -40,8 +41,9 @@ def test_gain_certified_with_euler_disk_and_printed_lmi_homogeneous() -> None:
 
 
 def test_sensitivity_gradient_equals_finite_differences() -> None:
-    """(1.45)-(1.50): the accumulated gradient over a 30-step window equals the central finite
-    difference of the summed loss (the forward sensitivity is exact for the Euler model)."""
+    """(1.45)-(1.50): the accumulated gradient over a 30-step window of the observer's compiled
+    sub-step equals the central finite difference of the summed loss (the forward sensitivity is
+    exact for the Euler model)."""
     model = vehicle_model(SEDAN)
     L = create("nao_nguyen", SEDAN).design().gain("L")
     A = model.A(20.0)
@@ -57,10 +59,11 @@ def test_sensitivity_gradient_equals_finite_differences() -> None:
         x = np.array([20.0, 0.05, 0.0, 0.08])
         S, g = np.zeros((4, N_THETA)), np.zeros(N_THETA)
         mu, Jth, Jx = np.zeros(2), np.zeros((2, N_THETA)), np.zeros((2, 4))
+        work, Acl, ex = np.zeros((6, 32)), np.empty((4, 4)), np.empty(4)
         tot = 0.0
         for k in range(30):
-            tot += nao_step(x, S, g, theta, A, model.Bu, model.Bmu, L, ys[k], np.array([0.1, 0.02]), xt, mut, Ty, Tu,
-                            1.0, 0.01, learn, mu, Jth, Jx)
+            tot += substep(x, S, g, theta, A, model.Bu, model.Bmu, L, ys[k], np.array([0.1, 0.02]), xt, mut, Ty, Tu,
+                           1.0, 0.01, learn, mu, Jth, Jx, work, Acl, ex)
         return tot, g
 
     _, g = window(theta0, True)
