@@ -307,13 +307,14 @@ def replay(
     veh: VehicleParams = load_vehicle(resolve_vehicle(vehicle, cmap), replay=True)
     check_format(table_format)
     n_jobs = check_jobs(jobs)
+    if n_jobs > 1:
+        from roadtruth.harness.evaluation import observer_host
+        # Their imports overlap this process's own (the observers) and reading the log.
+        observer_host.prestart(min(n_jobs, len(set(observers)) if observers else n_jobs))
     names = list(dict.fromkeys(observers)) if observers else available_observers()
     for name in names:
         observer_class(name)  # an unknown observer is refused before the log is read
     observer_options = check_observer_options(observer_options, names, veh)
-    if n_jobs > 1:
-        from roadtruth.harness.evaluation import observer_host
-        observer_host.prestart(min(n_jobs, len(names)))  # their imports overlap reading the log
     stage("prepare")
     rl = prepare_log(Path(log), cmap, vehicle=veh, rate_hz=rate_hz)
     for note in rl.notes:  # derived channels and fields, warnings of the consistency checks
