@@ -1,5 +1,5 @@
 """Wall time of the default suite (``run_suite()``: default scenarios × every observer, rendering on),
-broken down by stage. Run by hand: ``python benchmarks/bench_run.py [--jobs N] [--repeat K] [--render-sizes]``.
+broken down by stage. Run by hand: ``python benchmarks/bench_run.py [--jobs N] [--repeat K] [--render-sizes] [--cold]``.
 
 Each run's wall time is printed with its ratio to a baseline measured in the same invocation (a
 fresh ``python -c "import numpy"``, best of 3, before and after), so figures from a loaded machine
@@ -70,12 +70,31 @@ def render_sizes(sizes: tuple[tuple[int, int], ...] = ((640, 480), (480, 368), (
               f"{n} frames, {size / 1e3:.0f} kB written")
 
 
+def cold_start(jobs: int, render: bool) -> None:
+    """``roadtruth run`` as the first command after an install: a child process with an empty numba
+    cache (``NUMBA_CACHE_DIR``) and an empty roadtruth cache (``ROADTRUTH_CACHE``; the shipped
+    designs still serve), then the same command again with those caches filled."""
+    with tempfile.TemporaryDirectory(prefix="bench-cold-") as tmp:
+        env = {**os.environ, "NUMBA_CACHE_DIR": str(Path(tmp) / "numba"), "ROADTRUTH_CACHE": str(Path(tmp) / "cache")}
+        walls = []
+        for k in range(2):
+            cmd = [sys.executable, "-m", "roadtruth.harness.cli", "run", "--out", str(Path(tmp) / f"run{k}"),
+                   "--jobs", str(jobs), *([] if render else ["--no-render"])]
+            t = time.perf_counter()
+            subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            walls.append(time.perf_counter() - t)
+        print(f"\nfirst run after install (empty numba and roadtruth caches), jobs={jobs}: {walls[0]:.1f} s; "
+              f"the same command again: {walls[1]:.1f} s; one-time compilation ≈ {walls[0] - walls[1]:.0f} s")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--jobs", type=int, default=1)
     p.add_argument("--repeat", type=int, default=2, help="runs (the first may include compilation)")
     p.add_argument("--no-render", action="store_true")
     p.add_argument("--render-sizes", action="store_true", help="also print the render cost per frame by size")
+    p.add_argument("--cold", action="store_true",
+                   help="also time `roadtruth run` with empty numba and roadtruth caches (a fresh install)")
     a = p.parse_args()
     base = baseline_s()
     print(f"baseline (python -c 'import numpy', best of 3): {base:.2f} s")
@@ -108,6 +127,8 @@ def main() -> None:
                 print(f"    {name:<20} " + " ".join(f"{k}={v:.2f}" for k, v in ts.items()))
     if a.render_sizes:
         render_sizes()
+    if a.cold:
+        cold_start(a.jobs, not a.no_render)
     after = baseline_s()
     print(f"\nbaseline after: {after:.2f} s; load average after: {os.getloadavg()[0]:.2f}")
 
