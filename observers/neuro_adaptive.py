@@ -43,6 +43,10 @@ lead vehicle seen by radar, position = range. State ``x = (d, d', a_L)``: range 
 network sees ``(d, d' + v_E, a_L)`` (lead speed from the ego wheel speed ``vx_mps``). Only range
 is used (position only, as in ch. 3); a range sample older than ``hold_s`` is not used (the
 innovation is dropped). The first range sample initialises ``d``; ``d' = 0``, ``a_L = a_E``.
+
+*Compiled.* ``step()``, ``run()`` and ``run_model()`` of all four observers call one numba kernel
+(:mod:`roadtruth.observers.neuro_adaptive_loop`) with one sample or the whole log, on state arrays
+carried between calls, so stepping and a whole run agree bit for bit.
 """
 
 from __future__ import annotations
@@ -55,238 +59,21 @@ from typing import Any
 import numpy as np
 
 from roadtruth.harness.errors import InputError
-from roadtruth.harness.truth.tire import jit
 from roadtruth.observers import neuro_adaptive_design as nad
-from roadtruth.observers.base import EstimateTrack, Observer
+from roadtruth.observers.base import EstimateTrack, Observer, StepOutput
 from roadtruth.observers.lmi import DesignResult, usable_gains
+from roadtruth.observers.neuro_adaptive_loop import (
+    MODE_CHAKRABARTY,
+    MODE_CL,
+    N_PAR,
+    REG_M7C,
+    REG_SIGMOID,
+    learning_run,
+)
 from roadtruth.observers.registry import register
 
-REG_SIGMOID = 0   # sigma(x) of (3.29): three sigmoids
-REG_M7C = 1       # known regressor of (3.27): (v a, a, v^2, 1)
-IOTA = 0.01       # saturation overshoot of rho (Ran & Xie: rho(inf) = 1 + iota)
-
-
-def _regressor(kind: int, x1: float, x2: float, x3: float, out: np.ndarray) -> None:
-    if kind == REG_SIGMOID:
-        out[0] = 1.0 / (1.0 + math.exp(-x1))
-        out[1] = 1.0 / (1.0 + math.exp(-x2))
-        out[2] = 1.0 / (1.0 + math.exp(-x3))
-    else:
-        out[0] = x2 * x3
-        out[1] = x3
-        out[2] = x2 * x2
-        out[3] = 1.0
-
-
-def _rho(v: float, m: float) -> float:
-    """``M rho(v / M)``: identity inside ``|v| <= M``, smooth saturation to ``(1 + iota) M`` outside."""
-    if not m < math.inf:
-        return v
-    q = v / m
-    if abs(q) <= 1.0:
-        return v
-    s = 1.0 if q > 0 else -1.0
-    return m * s * (1.0 + IOTA * math.tanh((abs(q) - 1.0) / IOTA))
-
-
-def _smin(Z: np.ndarray) -> float:
-    ev = np.linalg.eigvalsh(Z @ Z.T)
-    return math.sqrt(max(ev[0], 0.0))
-
-
-def _cl_loop(t: np.ndarray, Y: np.ndarray, hidx: np.ndarray, PHI: np.ndarray, G0: np.ndarray, G1: np.ndarray,
-             Lt: np.ndarray, kind: int, sat: np.ndarray, eta1: float, eta2: float, p: int, rec_dt: float,
-             hold: float, z0: np.ndarray, W0: np.ndarray, started0: bool,
-             out_z: np.ndarray, out_W: np.ndarray, out_smin: np.ndarray, out_fnn: np.ndarray) -> None:
-    """Loop of (3.11)/(3.7). ``Y`` (n, 4): y, b_2, b_3 (known inputs of rows 2, 3), v_offset; NaN = none.
-
-    ``PHI, G0, G1`` (nh, 2, 4, 4): exact discretisation per distinct step (index ``hidx`` (n,)), with
-    [0] the closed loop ``A~ - L~ C~`` and [1] the open chain (no position sample within ``hold``).
-    """
-    n = t.shape[0]
-    N = W0.shape[0]
-    z = z0.copy()
-    W = W0.copy()
-    Z = np.zeros((N, p))
-    Lam = np.zeros(p)
-    k = 0
-    smin = 0.0
-    s = np.zeros(N)
-    last = np.full(4, np.nan)      # latest sample of each channel
-    tl = np.full(4, -np.inf)        # its time
-    slope = np.zeros(4)             # its slope (from the two latest samples)
-    started = started0
-    t_rec = -np.inf
-    tprev = t[0]
-    rhs0 = np.zeros(4)
-    rhs1 = np.zeros(4)
-    for i in range(n):
-        ti = t[i]
-        for c in range(4):
-            v = Y[i, c]
-            if v == v:
-                dt = ti - tl[c]
-                slope[c] = (v - last[c]) / dt if (dt > 0.0 and dt <= hold and last[c] == last[c]) else 0.0
-                last[c] = v
-                tl[c] = ti
-        h = ti - tprev
-        tprev = ti
-        if not started:
-            if last[0] == last[0]:
-                z[0] = last[0]
-                z[1] = 0.0
-                z[2] = 0.0 if last[1] != last[1] else -last[1]  # a_L = a_E (b_2 = -a_E)
-                z[3] = 0.0
-                started = True
-        elif h > 0.0:
-            use_y = (ti - tl[0]) <= hold
-            j = 0 if use_y else 1
-            hi = hidx[i]
-            # input lines over [t - h, t]: value at t - h and slope (extrapolated while held)
-            for r in range(4):
-                rhs0[r] = 0.0
-                rhs1[r] = 0.0
-            for c in (1, 2):
-                if last[c] == last[c]:
-                    sc = slope[c] if ti - tl[c] <= hold else 0.0
-                    rhs0[c] += last[c] + sc * (ti - h - tl[c])
-                    rhs1[c] += sc
-            if use_y:
-                y0 = last[0] + slope[0] * (ti - h - tl[0])
-                for r in range(4):
-                    rhs0[r] += Lt[r] * y0
-                    rhs1[r] += Lt[r] * slope[0]
-            zn = PHI[hi, j] @ z + G0[hi, j] @ rhs0 + G1[hi, j] @ rhs1
-            ok = True
-            for r in range(4):
-                if not (zn[r] - zn[r] == 0.0):
-                    ok = False
-            if ok:
-                z = zn
-            # weights: backward Euler of W' = -(eta1 s s^T + eta2 Z Z^T) W + eta1 s x4 + eta2 Z Lam
-            voff = last[3] if last[3] == last[3] else 0.0
-            _regressor(kind, _rho(z[0], sat[0]), _rho(z[1] + voff, sat[1]), _rho(z[2], sat[2]), s)
-            x4 = _rho(z[3], sat[3])
-            M = np.eye(N) + h * (eta1 * np.outer(s, s) + eta2 * (Z @ Z.T))
-            b = W + h * (eta1 * s * x4 + eta2 * (Z @ Lam))
-            W = np.linalg.solve(M, b)
-            if ti - t_rec >= rec_dt - 1e-12:
-                t_rec = ti
-                if k < p:
-                    Z[:, k] = s
-                    Lam[k] = x4
-                    k += 1
-                    smin = _smin(Z)
-                else:
-                    best = -1.0
-                    jbest = -1
-                    for jj in range(p):
-                        old = Z[:, jj].copy()
-                        Z[:, jj] = s
-                        sj = _smin(Z)
-                        Z[:, jj] = old
-                        if sj > best:
-                            best = sj
-                            jbest = jj
-                    if best > smin:
-                        Z[:, jbest] = s
-                        Lam[jbest] = x4
-                        smin = best
-        for r in range(4):
-            out_z[i, r] = z[r]
-        voff = last[3] if last[3] == last[3] else 0.0
-        _regressor(kind, _rho(z[0], sat[0]), _rho(z[1] + voff, sat[1]), _rho(z[2], sat[2]), s)
-        out_fnn[i] = W @ s
-        for r in range(N):
-            out_W[i, r] = W[r]
-        out_smin[i] = smin
-
-
-def _chak_rhs(x: np.ndarray, W: np.ndarray, y: float, b2: float, b3: float, voff: float, L0: np.ndarray,
-              lw: np.ndarray, use_y: bool, s: np.ndarray, dx: np.ndarray, dW: np.ndarray) -> None:
-    _regressor(REG_SIGMOID, x[0], x[1] + voff, x[2], s)
-    e = (y - x[0]) if use_y else 0.0
-    dx[0] = x[1] + L0[0] * e
-    dx[1] = x[2] + b2 + L0[1] * e
-    dx[2] = W @ s + b3 + L0[2] * e
-    for r in range(W.shape[0]):
-        dW[r] = lw[r] * e
-
-
-def _chak_loop(t: np.ndarray, Y: np.ndarray, L0: np.ndarray, lw: np.ndarray, hmax: float, hold: float,
-               x0: np.ndarray, W0: np.ndarray, started0: bool, out_z: np.ndarray, out_W: np.ndarray,
-               out_fnn: np.ndarray) -> None:
-    """Chakrabarty et al. (3.4) with RK4 sub-steps of at most ``hmax`` [s]; inputs as in ``_cl_loop``."""
-    n = t.shape[0]
-    N = W0.shape[0]
-    x = x0.copy()
-    W = W0.copy()
-    last = np.full(4, np.nan)
-    tl = np.full(4, -np.inf)
-    slope = np.zeros(4)
-    started = started0
-    tprev = t[0]
-    s = np.zeros(N)
-    k1x, k2x, k3x, k4x = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
-    k1w, k2w, k3w, k4w = np.zeros(N), np.zeros(N), np.zeros(N), np.zeros(N)
-    for i in range(n):
-        ti = t[i]
-        for c in range(4):
-            v = Y[i, c]
-            if v == v:
-                dt = ti - tl[c]
-                slope[c] = (v - last[c]) / dt if (dt > 0.0 and dt <= hold and last[c] == last[c]) else 0.0
-                last[c] = v
-                tl[c] = ti
-        h = ti - tprev
-        tprev = ti
-        if not started:
-            if last[0] == last[0]:
-                x[0] = last[0]
-                x[1] = 0.0
-                x[2] = 0.0 if last[1] != last[1] else -last[1]
-                started = True
-        elif h > 0.0:
-            use_y = (ti - tl[0]) <= hold
-            m = int(math.ceil(h / hmax))
-            hs = h / m
-            voff = last[3] if last[3] == last[3] else 0.0
-            for q in range(m):
-                ta = ti - h + q * hs
-                vals = np.zeros(3)
-                sl = np.zeros(3)
-                for c in range(3):
-                    if last[c] == last[c]:
-                        sc = slope[c] if (c == 0 or ti - tl[c] <= hold) else 0.0
-                        vals[c] = last[c] + sc * (ta - tl[c])
-                        sl[c] = sc
-                _chak_rhs(x, W, vals[0], vals[1], vals[2], voff, L0, lw, use_y, s, k1x, k1w)
-                hh = 0.5 * hs
-                _chak_rhs(x + hh * k1x, W + hh * k1w, vals[0] + hh * sl[0], vals[1] + hh * sl[1],
-                          vals[2] + hh * sl[2], voff, L0, lw, use_y, s, k2x, k2w)
-                _chak_rhs(x + hh * k2x, W + hh * k2w, vals[0] + hh * sl[0], vals[1] + hh * sl[1],
-                          vals[2] + hh * sl[2], voff, L0, lw, use_y, s, k3x, k3w)
-                _chak_rhs(x + hs * k3x, W + hs * k3w, vals[0] + hs * sl[0], vals[1] + hs * sl[1],
-                          vals[2] + hs * sl[2], voff, L0, lw, use_y, s, k4x, k4w)
-                xn = x + (hs / 6.0) * (k1x + 2.0 * k2x + 2.0 * k3x + k4x)
-                Wn = W + (hs / 6.0) * (k1w + 2.0 * k2w + 2.0 * k3w + k4w)
-                if np.all(np.isfinite(xn)) and np.all(np.isfinite(Wn)):
-                    x, W = xn, Wn
-        voff = last[3] if last[3] == last[3] else 0.0
-        _regressor(REG_SIGMOID, x[0], x[1] + voff, x[2], s)
-        f = W @ s
-        out_z[i, 0], out_z[i, 1], out_z[i, 2], out_z[i, 3] = x[0], x[1], x[2], f
-        out_fnn[i] = f
-        for r in range(N):
-            out_W[i, r] = W[r]
-
-
-_regressor = jit(_regressor)
-_rho = jit(_rho)
-_smin = jit(_smin)
-_cl_loop = jit(_cl_loop)
-_chak_rhs = jit(_chak_rhs)
-_chak_loop = jit(_chak_loop)
+#: Most exact discretisations kept per observer (one per distinct step length; irregular stamps add more).
+DISCRETISATION_CACHE = 4096
 
 
 def exact_discretisation(Acl: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -333,6 +120,7 @@ class _LearningObserver(Observer):
     inputs = ("range_m", "vx_mps", "ax_mps2")
     states = ("range_m", "range_rate_mps", "lead_accel_mps2")
     kind = REG_SIGMOID
+    mode = MODE_CL
 
     def __init__(self, vehicle: Any, **options: Any) -> None:
         super().__init__(vehicle, **options)
@@ -350,7 +138,11 @@ class _LearningObserver(Observer):
                 and self._W0.size == n_reg and np.all(np.isfinite(self._W0))):
             raise InputError(f"bad option: need eta1, eta2 >= 0, stack_size >= {n_reg}, record_interval_s, "
                              f"hold_s > 0 and {n_reg} finite weights0", field=f"observer {self.name}")
-        self._track: EstimateTrack | None = None
+        # (Lt, par, sat, Acl): the kernel's constants, built at the first step (a failed design or a
+        # bad gain option fails the run, not the construction)
+        self._consts: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._disc: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self.reset(0.0)
 
     def gains(self) -> np.ndarray:
         """``L~ = [L; K]`` (4,) [1/s, 1/s^2, 1/s^3, 1/s^4]."""
@@ -360,68 +152,123 @@ class _LearningObserver(Observer):
     def saturation(self) -> np.ndarray:
         return np.full(4, np.inf)
 
-    def _run(self, t: np.ndarray, Y: np.ndarray, z0: np.ndarray | None) -> LearningTrack:
-        t = np.ascontiguousarray(t, dtype=float)
-        Y = np.ascontiguousarray(Y, dtype=float)
-        n = len(t)
-        Lt = self.gains()
-        hs = np.diff(t) if n > 1 else np.zeros(0)
-        key = np.round(hs, 12)
-        uniq, inv = np.unique(key, return_inverse=True) if n > 1 else (np.zeros(1), np.zeros(0, dtype=np.int64))
-        uniq = np.where(uniq > 0, uniq, 1.0)
-        hidx = np.zeros(n, dtype=np.int64)
-        hidx[1:] = inv
-        PHI = np.empty((len(uniq), 2, 4, 4))
-        G0 = np.empty_like(PHI)
-        G1 = np.empty_like(PHI)
-        Acl = nad.A_EXT - Lt.reshape(4, 1) @ nad.C_EXT
-        for q, h in enumerate(uniq):
-            for j, A in enumerate((Acl, nad.A_EXT)):
-                PHI[q, j], G0[q, j], G1[q, j] = exact_discretisation(A, float(h))
+    def _weight_gains(self, Lt: np.ndarray, z0: np.ndarray | None) -> np.ndarray:
+        """Gains of an output-error weight law (mode 1 only); (N,)."""
+        return np.zeros(self._W0.size)
+
+    def _constants(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        if self._consts is None:
+            Lt = np.ascontiguousarray(self.gains(), dtype=float)
+            hmax = 0.2 / (4.0 * float(self.options["omega"])) if self.mode == MODE_CHAKRABARTY else 0.0
+            par = np.array([self.mode, self.kind, self._eta[0], self._eta[1], self._rec, self._hold, hmax])
+            assert par.shape == (N_PAR,)
+            sat = np.ascontiguousarray(self.saturation(), dtype=float)
+            self._consts = (Lt, par, sat, nad.A_EXT - Lt.reshape(4, 1) @ nad.C_EXT)
+        return self._consts
+
+    def _start(self, z0: np.ndarray | None) -> None:
+        """Fresh kernel state; ``z0`` (4,) starts the observer there (else at the first range sample)."""
         N = self._W0.size
-        out_z, out_W = np.empty((n, 4)), np.empty((n, N))
-        out_s, out_f = np.empty(n), np.empty(n)
-        z_init = np.zeros(4) if z0 is None else np.asarray(z0, dtype=float)
-        _cl_loop(t, Y, hidx, PHI, G0, G1, Lt, self.kind, self.saturation(), self._eta[0], self._eta[1], self._p,
-                 self._rec, self._hold, z_init, self._W0.copy(), z0 is not None, out_z, out_W, out_s, out_f)
+        self._z0 = None if z0 is None else np.array(z0, dtype=float).reshape(4)
+        self._kz = np.zeros(4) if self._z0 is None else self._z0.copy()
+        self._kW = self._W0.copy()
+        self._kZ = np.zeros((N, self._p))      # history stack (Algorithm 2)
+        self._kLam = np.zeros(self._p)
+        self._klast = np.full(4, np.nan)       # latest sample of each channel, its time [s] and slope
+        self._ktl = np.full(4, -np.inf)
+        self._kslope = np.zeros(4)
+        self._kst = np.array([0.0 if self._z0 is None else 1.0, np.nan, -np.inf, 0.0, 0.0])
+        self._lw: np.ndarray | None = None
+
+    def _discretisation(self, t: np.ndarray, Acl: np.ndarray) -> tuple[np.ndarray, ...]:
+        """``(hidx, PHI, G0, G1)`` of the steps ending at ``t`` (the first from the kernel's last time)."""
+        n = t.shape[0]
+        if self.mode != MODE_CL:
+            return np.zeros(n, dtype=np.int64), np.zeros((1, 2, 4, 4)), np.zeros((1, 2, 4, 4)), np.zeros((1, 2, 4, 4))
+        h = np.diff(t, prepend=self._kst[1])
+        # steps are matched to 1e-12 s; a positive step that rounds to 0 gets the unit step's
+        # matrices, as the loop always has done
+        key = np.round(h, 12)
+        key = np.where(key > 0.0, key, 1.0)
+        if n == 1:
+            uniq, inv = (key, np.zeros(1, dtype=np.int64)) if h[0] > 0.0 else (key[:0], np.zeros(1, dtype=np.int64))
+        else:
+            uniq, inv = np.unique(key[h > 0.0], return_inverse=True)
+            full = np.zeros(n, dtype=np.int64)
+            full[h > 0.0] = inv
+            inv = full
+        if len(self._disc) + len(uniq) > DISCRETISATION_CACHE:
+            self._disc.clear()
+        mats = []
+        for k in uniq.tolist():
+            m = self._disc.get(k)
+            if m is None:
+                pairs = [exact_discretisation(A, k) for A in (Acl, nad.A_EXT)]
+                m = tuple(np.array([pr[i] for pr in pairs]) for i in range(3))
+                self._disc[k] = m
+            mats.append(m)
+        if not mats:
+            mats = [(np.zeros((2, 4, 4)),) * 3]
+        if len(mats) == 1:
+            PHI, G0, G1 = (m[None] for m in mats[0])
+        else:
+            PHI, G0, G1 = (np.ascontiguousarray([m[i] for m in mats]) for i in range(3))
+        return inv, PHI, G0, G1
+
+    def _kernel(self, t: np.ndarray, Y: np.ndarray) -> LearningTrack:
+        """Advance the kernel state through ``t`` (n,) [s], ``Y`` (n, 4) (kernel columns)."""
+        Lt, par, sat, Acl = self._constants()
+        # writeable C arrays: numba compiles a second copy of the kernel for read-only ones
+        t, Y = (np.require(a, dtype=float, requirements=("C", "W")) for a in (t, Y))
+        if self._lw is None:
+            self._lw = np.ascontiguousarray(self._weight_gains(Lt, self._z0), dtype=float)
+        hidx, PHI, G0, G1 = self._discretisation(t, Acl)
+        n, N = t.shape[0], self._W0.size
+        out_z, out_W, out_s, out_f = np.empty((n, 4)), np.empty((n, N)), np.empty(n), np.empty(n)
+        learning_run(t, Y, hidx, PHI, G0, G1, Lt, self._lw, par, sat, self._kz, self._kW, self._kZ, self._kLam,
+                     self._klast, self._ktl, self._kslope, self._kst, out_z, out_W, out_s, out_f)
         return LearningTrack(t, out_z, out_W, out_f, out_s)
 
     def run_model(self, t: np.ndarray, y: np.ndarray, u: np.ndarray, z0: np.ndarray,
                   bu: float = 1.0 / (nad.M7C["mass_kg"] * nad.M7C["tau_s"])) -> LearningTrack:
-        """Design model (3.27): position ``y`` (n,) [m], input ``u`` (n,) [N], start ``z0`` (4,)."""
-        Y = np.column_stack([y, np.zeros(len(t)), bu * np.asarray(u, float), np.zeros(len(t))])
-        return self._run(np.asarray(t, float), Y, z0)
+        """Design model (3.27): position ``y`` (n,) [m], input ``u`` (n,) [N], start ``z0`` (4,).
+
+        Restarts the observer from ``z0`` (its state is then the end of this run)."""
+        t = np.ascontiguousarray(t, dtype=float)
+        Y = np.ascontiguousarray(np.column_stack([y, np.zeros(len(t)), bu * np.asarray(u, float), np.zeros(len(t))]))
+        self._start(np.asarray(z0, dtype=float))
+        return self._kernel(t, Y)
 
     # harness interface ------------------------------------------------------------------------
     def reset(self, t0_s: float, x0: Mapping[str, float] | None = None) -> None:
+        """Restart; the clock starts at the first sample (a range sample starts the estimate unless ``x0``)."""
         self._t0 = t0_s
         bad = sorted(set(x0 or {}) - set(self.states))
         if bad:
             raise InputError(f"cannot initialise state {bad[0]!r} (settable: {', '.join(self.states)})",
                              field=f"observer {self.name} x0")
-        self._x0 = None if not x0 else np.array([float(x0.get(s, 0.0)) for s in self.states] + [0.0])
-        self._hist_t: list[float] = []
-        self._hist_y: list[np.ndarray] = []
+        self._start(None if not x0 else np.array([float(x0.get(s, 0.0)) for s in self.states] + [0.0]))
 
-    def step(self, t_s: float, y: np.ndarray) -> Any:
-        """Step-by-step use reruns the compiled loop on the history (the harness calls :meth:`run`)."""
-        from roadtruth.observers.base import StepOutput
-        self._hist_t.append(float(t_s))
-        self._hist_y.append(np.asarray(y, dtype=float))
-        tr = self._run(np.array(self._hist_t), self._relative_inputs(np.array(self._hist_y)), self._x0)
-        return StepOutput(tr.z[-1, :3].copy())
+    def step(self, t_s: float, y: np.ndarray) -> StepOutput:
+        """One sample through the compiled kernel (the code ``run()`` loops in, so the same bits)."""
+        y = np.asarray(y, dtype=float).reshape(3)
+        row = np.array([[y[0], -y[2], 0.0, y[1]]])
+        tr = self._kernel(np.array([float(t_s)]), row)
+        return StepOutput(tr.z[0, :3].copy())
 
     @staticmethod
     def _relative_inputs(Y: np.ndarray) -> np.ndarray:
         # columns: range (y), -a_E (row 2 of the relative model), 0 (no known lead input), v_E
         Y = np.asarray(Y, dtype=float).reshape(-1, 3)
-        return np.column_stack([Y[:, 0], -Y[:, 2], np.zeros(len(Y)), Y[:, 1]])
+        return np.ascontiguousarray(np.column_stack([Y[:, 0], -Y[:, 2], np.zeros(len(Y)), Y[:, 1]]))
 
     def run(self, t: np.ndarray, Y: np.ndarray, x0: Mapping[str, float] | None = None) -> EstimateTrack:
+        """Reset at ``t[0]`` and advance through the whole log in one compiled call (equal to stepping)."""
+        t = np.ascontiguousarray(t, dtype=float)
         self.reset(float(t[0]) if len(t) else 0.0, x0)
-        tr = self._run(np.asarray(t, float), self._relative_inputs(Y), self._x0)
+        tr = self._kernel(t, self._relative_inputs(Y))
         self.last_learning = tr
-        return EstimateTrack(self.name, tuple(self.states), np.asarray(t, float), tr.z[:, :3].copy())
+        return EstimateTrack(self.name, tuple(self.states), t, tr.z[:, :3].copy())
 
 
 @register
@@ -482,6 +329,7 @@ class NeuroAdaptiveChakrabarty(_LearningObserver):
     citation = ("A. Chakrabarty, A. Zemouche, R. Rajamani, M. Benosman, robust data-driven neuro-adaptive "
                 "observers, as recalled in H. Bessafa, PhD thesis, Univ. Lorraine 2024, sec. 3.2, (3.4)")
     variant = "chakrabarty"
+    mode = MODE_CHAKRABARTY
     default_options = {**_COMMON, "omega": 10.0}
 
     def _compute_design(self) -> DesignResult:
@@ -494,18 +342,10 @@ class NeuroAdaptiveChakrabarty(_LearningObserver):
             raise InputError("bad option: omega must be > 0", field=f"observer {self.name}")
         return nad.chain_poles_gains(om)
 
-    def _run(self, t: np.ndarray, Y: np.ndarray, z0: np.ndarray | None) -> LearningTrack:
-        t = np.ascontiguousarray(t, dtype=float)
-        Y = np.ascontiguousarray(Y, dtype=float)
-        n = len(t)
-        g = self.gains()
+    def _weight_gains(self, Lt: np.ndarray, z0: np.ndarray | None) -> np.ndarray:
         # L0 places (A - L0 C) like the first three chain gains; l_w spreads the fourth over the
         # weights so that, at the regressor of the start, the pair (x_hat, W^T s) has the gains of the
         # extended observer with all poles at -omega (the original LMIs of the paper are not given).
         x_start = np.zeros(3) if z0 is None else np.asarray(z0[:3], float)
         s0 = 1.0 / (1.0 + np.exp(-x_start))
-        lw = g[3] * s0 / float(s0 @ s0)
-        out_z, out_W, out_f = np.empty((n, 4)), np.empty((n, 3)), np.empty(n)
-        _chak_loop(t, Y, g[:3].copy(), lw, 0.2 / (4.0 * float(self.options["omega"])), self._hold,
-                   x_start, self._W0.copy(), z0 is not None, out_z, out_W, out_f)
-        return LearningTrack(t, out_z, out_W, out_f, np.zeros(n))
+        return Lt[3] * s0 / float(s0 @ s0)

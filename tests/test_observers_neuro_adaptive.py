@@ -159,3 +159,110 @@ def test_runs_on_mujoco_car_following(car_following: object) -> None:
         assert list(rows.index) == ["range_m", "range_rate_mps", "lead_accel_mps2"], name
         assert rows["status"].notna().all()
         assert bool(rows["certified"].all()) is (name == "neuro_adaptive_cl")
+
+
+# ---- step() and run() share one compiled kernel ---------------------------------------------------
+
+def _radar_log() -> tuple[np.ndarray, np.ndarray]:
+    """20 s at 100 Hz of (range_m, vx_mps, ax_mps2): a lead 30 m ahead that speeds up and brakes,
+    radar at 20 Hz with 10 % of its samples lost, ego speed/acceleration with 5 % dropouts, nothing
+    in the first 50 ms, a 0.6 s radar outage (longer than hold_s: the open chain predicts), a
+    repeated and an irregular time stamp and one 30 ms step."""
+    n, h = 2000, 0.01
+    t = np.arange(n) * h
+    v_e = 20.0 + 2.0 * np.sin(2 * np.pi * t / 15.0)
+    a_l = 1.5 * np.sin(2 * np.pi * t / 6.0) * (t > 2.0)
+    v_l = 20.0 + np.cumsum(a_l) * h
+    rng_m = 30.0 + np.concatenate([[0.0], np.cumsum((v_l - v_e)[:-1]) * h])
+    gen = np.random.default_rng(4)
+    Y = np.column_stack([rng_m + gen.normal(0.0, 0.05, n), v_e + gen.normal(0.0, 0.02, n),
+                         np.gradient(v_e, h) + gen.normal(0.0, 0.05, n)])
+    Y[np.arange(n) % 5 != 0, 0] = np.nan
+    Y[gen.random(n) < 0.10, 0] = np.nan
+    ego = Y[:, 1:]
+    ego[gen.random(ego.shape) < 0.05] = np.nan
+    Y[:5] = np.nan
+    Y[900:960, 0] = np.nan
+    t[1200] = t[1199]
+    t[1400:] += 0.0037
+    t[1600:] += 0.02
+    return t, Y
+
+
+@pytest.fixture(scope="module")
+def car_following_log() -> tuple[np.ndarray, np.ndarray]:
+    """``(t, Y)`` of the MuJoCo car-following scenario through its sensors (radar on a lead car)."""
+    import roadtruth as rt
+
+    sc = rt.load_scenario("car_following")
+    truth = rt.simulate(sc, seed=0)
+    meas = rt.emulate(truth.frame, rt.load_vehicle(sc.vehicle), rt.load_sensor_config(sc.sensors,
+                      sc.sensor_overrides), seed=0).frame
+    return meas["t_s"].to_numpy(dtype=float), meas[list(na.NeuroAdaptiveCL.inputs)].to_numpy(dtype=float)
+
+
+_KERNEL_STATE = ("_kz", "_kW", "_kZ", "_kLam", "_klast", "_ktl", "_kslope", "_kst")
+
+
+def _step_equals_run(name: str, t: np.ndarray, Y: np.ndarray, x0: dict[str, float] | None = None) -> np.ndarray:
+    from roadtruth.observers.registry import create
+
+    obs = create(name, None)
+    track = obs.run(t, Y, x0)
+    ref = create(name, None)
+    ref.reset(float(t[0]), x0)
+    want = np.array([ref.step(float(t[i]), Y[i]).x for i in range(len(t))])
+    np.testing.assert_array_equal(track.x, want)
+    for key in _KERNEL_STATE:   # weights, history stack, latch: everything the next step reads
+        np.testing.assert_array_equal(getattr(obs, key), getattr(ref, key), err_msg=key)
+    # the run learned: weights moved, (CL variants) the history stack filled
+    assert np.all(np.isfinite(want)) and np.abs(ref._kW - ref._W0).max() > 1e-6
+    if name != "neuro_adaptive_chakrabarty":
+        assert ref._kst[3] == ref._p and obs.last_learning.smin[-1] > 0.0
+    # run() left the stepped state: the next step agrees
+    t_next, y_next = float(t[-1]) + 0.05, np.nan_to_num(Y[-1], nan=20.0) * 1.001
+    np.testing.assert_array_equal(obs.step(t_next, y_next).x, ref.step(t_next, y_next).x)
+    return want
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_step_equals_run_through_gaps_and_irregular_stamps(name: str) -> None:
+    t, Y = _radar_log()
+    x = _step_equals_run(name, t, Y)
+    assert np.all(x[:5] == 0.0) and x[5, 0] != 0.0          # starts at the first range sample
+    # through the radar outage the estimate is predicted (open chain), not frozen
+    assert np.ptp(x[905:960, 0]) > 0.01
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_step_equals_run_from_initial_state(name: str) -> None:
+    t, Y = _radar_log()
+    x = _step_equals_run(name, t, Y, {"range_m": 28.0, "range_rate_mps": -0.5})
+    assert x[0, 0] == 28.0 and x[0, 1] == -0.5               # started from x0, not from the first sample
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_step_equals_run_on_mujoco_car_following(name: str, car_following_log) -> None:
+    t, Y = car_following_log
+    assert np.isnan(Y[:, 0]).any() and np.isfinite(Y[:, 0]).sum() > 50   # radar at its own rate
+    _step_equals_run(name, t, Y)
+
+
+def test_one_kernel_for_the_family() -> None:
+    """All four observers, stepping, run() on read-only logs (as pandas hands them out) and run_model
+    use one compiled specialisation of the one kernel of neuro_adaptive_loop (each extra one costs
+    tens of seconds of numba compilation on a fresh install)."""
+    from roadtruth.observers import neuro_adaptive_loop as loop
+    from roadtruth.observers.registry import create
+
+    t, Y = _radar_log()
+    t, Y = t[:60], Y[:60]
+    t.flags.writeable = False
+    Y.flags.writeable = False
+    for name in NAMES:
+        obs = create(name, None)
+        obs.run(t, Y)
+        obs.step(float(t[-1]) + 0.01, Y[-1])
+        obs.run_model(t, Y[:, 0], np.ones(len(t)), Z0)
+    sig = loop.learning_run.signatures
+    assert len(sig) == 1, sig
