@@ -14,7 +14,8 @@ Observer (1.10), ``zeta = (v_x, v_y, psi, r, f_yf, f_yr)`` (forces in kN):
 
 scheduled on the measured ``rho = (v_x, 1/v_x)`` (``v_x`` clamped into the design range so that rho
 stays in the certified polytope). Per step the inputs are first-order held and the affine ODE in ``eta`` is
-integrated by RK4 with sub-steps ``|lambda| h_sub <= 0.5`` (a compiled kernel with a plain-Python twin).
+integrated by RK4 with sub-steps ``|lambda| h_sub <= 0.5``. The whole per-sample update is one compiled
+kernel (:func:`roadtruth.observers.uio_nguyen_loop.nguyen_run`) shared by ``step()`` and ``run()``.
 
 Measurements: ``v_x <- vx_mps``, ``r <- yaw_rate_radps``, ``a <- ax_mps2`` (the accelerometer's
 specific force; (1.52a)'s ``r v_y`` and ``mu g`` are not in the printed row 1, and ``v_x`` only feeds
@@ -56,60 +57,23 @@ from typing import Any
 import numpy as np
 
 from roadtruth.harness.errors import InputError
-from roadtruth.harness.truth.tire import jit
-from roadtruth.observers.base import ScalarLoopObserver
+from roadtruth.observers.base import EstimateTrack, ScalarLoopObserver, StepOutput
 from roadtruth.observers.lmi import DesignFailed, DesignResult, DesignStatus
 from roadtruth.observers.registry import register
 from roadtruth.observers.uio_nguyen_design import MU_SCALE_N, N_X, N_ZETA, scheduling_points, vehicle_model
-
-TWO_PI = 2.0 * math.pi
-SUBSTEP_RATE = 0.5  # largest ||M|| h_sub of one RK4 sub-step
-
-
-@jit
-def affine_rk4(z: np.ndarray, Ms: np.ndarray, Gs: np.ndarray, w0: np.ndarray, w1: np.ndarray, rho1: float,
-               rho2: float, h: float, nsub: int) -> None:
-    """Advance ``z' = M z + G w(t)`` by ``h`` [s] in place with ``nsub`` RK4 sub-steps.
-
-    ``M = Ms[0] + rho1 Ms[1] + rho2 Ms[2]``: Ms (3, n, n); ``G`` likewise from Gs (3, n, m); the input
-    is first-order held, ``w(t)`` linear from w0 (m,) at the start to w1 (m,) at the end of the step.
-    """
-    n = z.shape[0]
-    m = w0.shape[0]
-    M = np.empty((n, n))
-    b0 = np.empty(n)
-    db = np.empty(n)
-    for i in range(n):
-        s0 = 0.0
-        s1 = 0.0
-        for j in range(m):
-            g = Gs[0, i, j] + rho1 * Gs[1, i, j] + rho2 * Gs[2, i, j]
-            s0 += g * w0[j]
-            s1 += g * w1[j]
-        b0[i] = s0
-        db[i] = s1 - s0
-        for j in range(n):
-            M[i, j] = Ms[0, i, j] + rho1 * Ms[1, i, j] + rho2 * Ms[2, i, j]
-    k = np.empty((4, n))
-    zt = np.empty(n)
-    for sub in range(nsub):
-        for stage in range(4):
-            # stage times 0, 1/2, 1/2, 1 of the sub-step, as a fraction of the whole step
-            frac = (sub + (0.0 if stage == 0 else (1.0 if stage == 3 else 0.5))) / nsub
-            for i in range(n):
-                if stage == 0:
-                    zt[i] = z[i]
-                elif stage == 3:
-                    zt[i] = z[i] + (h / nsub) * k[2, i]
-                else:
-                    zt[i] = z[i] + 0.5 * (h / nsub) * k[stage - 1, i]
-            for i in range(n):
-                s = b0[i] + frac * db[i]
-                for j in range(n):
-                    s += M[i, j] * zt[j]
-                k[stage, i] = s
-        for i in range(n):
-            z[i] += (h / nsub) / 6.0 * (k[0, i] + 2.0 * k[1, i] + 2.0 * k[2, i] + k[3, i])
+from roadtruth.observers.uio_nguyen_loop import (  # noqa: F401  (affine_rk4, SUBSTEP_RATE: re-exported)
+    N_STATE,
+    PSI_M,
+    R_PREV,
+    STARTED,
+    SUBSTEP_RATE,
+    T_CUR,
+    T_R_PREV,
+    TRACKING,
+    TWO_PI,
+    affine_rk4,
+    nguyen_run,
+)
 
 
 @register
@@ -194,70 +158,70 @@ class NguyenUIO(ScalarLoopObserver):
         return z
 
     def _reset_extra(self) -> None:
+        # the kernel's carried state (roadtruth.observers.uio_nguyen_loop.nguyen_run), updated in place
+        self._ku, self._kfresh, self._ktl = np.full(4, math.nan), np.zeros(4, dtype=np.bool_), np.full(4, -math.inf)
         self._eta = np.zeros(N_ZETA)
         self._zeta = np.array(self._z, dtype=float)
-        self._psi_m = 0.0
-        self._r_prev, self._t_r_prev = math.nan, math.nan
-        self._tracking = False  # eta is seeded and the UIO is running
         self._w_prev = np.zeros(5)  # (y, u) at the previous step (first-order hold)
-        self._u_prev: np.ndarray | None = None
-        self._started = False
+        self._u_prev = np.zeros(2)
+        self._ks = np.zeros(N_STATE)
+        self._ks[T_CUR] = self._t
+        self._ks[R_PREV] = self._ks[T_R_PREV] = math.nan
+        z = self._zeta
+        self._last = np.array([z[1], z[3], 0.0])
+        self._par: np.ndarray | None = None
+
+    # the scalars of the carried state, by name (read by the neural adaptive observer's teacher)
+    @property
+    def _psi_m(self) -> float:
+        return float(self._ks[PSI_M])
+
+    @property
+    def _r_prev(self) -> float:
+        return float(self._ks[R_PREV])
+
+    @property
+    def _t_r_prev(self) -> float:
+        return float(self._ks[T_R_PREV])
+
+    @property
+    def _tracking(self) -> bool:
+        return bool(self._ks[TRACKING])
+
+    @property
+    def _started(self) -> bool:
+        return bool(self._ks[STARTED])
+
+    def _compiled(self, t: np.ndarray, Y: np.ndarray) -> np.ndarray:
+        """Advance through ``t`` (n,) [s], ``Y`` (n, 4) in the shared kernel; the (n, 3) estimates."""
+        Fs, Gs, Qz, Ms, Gp, bounds = self._consts if self._consts is not None else self.constants()
+        if self._par is None:
+            self._par = np.array([self._vlo, self._vhi, self._hold, self._d2])
+        out = np.empty((t.shape[0], 3))
+        nguyen_run(t, Y, self._ku, self._kfresh, self._ktl, self._eta, self._zeta, self._w_prev, self._u_prev,
+                   self._ks, Fs, Gs, Qz, Ms, Gp, bounds, self._par, out)
+        if t.shape[0]:
+            self._last = out[-1].copy()
+        return out
+
+    def step(self, t_s: float, y: np.ndarray) -> StepOutput:
+        """One sample through the compiled kernel (the same code ``run()`` loops in, so the same bits)."""
+        x = self._compiled(np.array([float(t_s)]), np.ascontiguousarray(np.asarray(y, dtype=float).reshape(1, 4)))
+        return StepOutput(x[0])
+
+    def run(self, t: np.ndarray, Y: np.ndarray, x0: Mapping[str, float] | None = None) -> EstimateTrack:
+        """Reset at ``t[0]`` and advance through the whole log in one compiled call (equal to stepping)."""
+        t = np.ascontiguousarray(t, dtype=float)
+        Y = np.ascontiguousarray(np.asarray(Y, dtype=float).reshape(len(t), len(self.inputs)))
+        if len(t):
+            self.reset(float(t[0]), x0)
+        return EstimateTrack(self.name, tuple(self.states), t, self._compiled(t, Y))
 
     def _advance(self, t_s: float, y: list[float]) -> None:
-        h = self._tick(t_s, y)
-        Fs, Gs, Qz, Ms, Gp, bounds = self._consts if self._consts is not None else self.constants()
-        vx, r, ax, delta = self._u
-        zeta = self._zeta
-        if not self._started:
-            if vx != vx:
-                return
-            zeta[0] = vx
-            self._started = True
-        if self._fresh[1]:
-            # Heading pseudo-measurement: trapezoidal integral of the gyro between its samples.
-            if self._r_prev == self._r_prev and self._tracking:
-                self._psi_m += 0.5 * (t_s - self._t_r_prev) * (self._r_prev + r)
-            self._r_prev, self._t_r_prev = r, t_s
-        v = vx if vx == vx else zeta[0]
-        v = self._vlo if v < self._vlo else (self._vhi if v > self._vhi else v)
-        u1 = np.array([ax if ax == ax else 0.0, delta if delta == delta else 0.0])
-        u0 = self._u_prev if self._u_prev is not None else u1
-        self._u_prev = u1
-        tl = self._t_last
-        live = r == r and vx == vx and t_s - min(tl[0], tl[1]) <= self._hold
-        if not live:
-            self._tracking = False
-            if h > 0.0:
-                nsub = max(1, math.ceil(h * bounds[1] / SUBSTEP_RATE))
-                affine_rk4(zeta, Ms, Gp, u0, u1, v, 1.0 / v, h, nsub)
-            return
-        if not self._tracking:
-            # (Re)start: the integrated gyro restarts where the model's psi is, eta = zeta - Q y.
-            self._psi_m = zeta[2] + self._d2 * zeta[4]
-            self._tracking = True
-            self._w_prev = np.array([vx, self._psi_m, r, u1[0], u1[1]])
-            self._eta = zeta - Qz @ self._w_prev[:3]
-            return
-        if self._psi_m > math.pi or self._psi_m < -math.pi:
-            c = TWO_PI * round(self._psi_m / TWO_PI)
-            self._psi_m -= c
-            self._eta[2] -= c
-            self._eta += c * Qz[:, 1]
-            self._w_prev[1] -= c
-        ym = np.array([vx, self._psi_m, r])
-        w1 = np.array([vx, self._psi_m, r, u1[0], u1[1]])
-        if h > 0.0:
-            nsub = max(1, math.ceil(h * bounds[0] / SUBSTEP_RATE))
-            affine_rk4(self._eta, Fs, Gs, self._w_prev, w1, v, 1.0 / v, h, nsub)
-        self._w_prev = w1
-        self._zeta = zeta = self._eta + Qz @ ym
+        self.step(t_s, np.array(y, dtype=float))
 
     def _values(self) -> list[float]:
-        zeta = self._zeta
-        vy, r = float(zeta[1]), float(zeta[3])
-        vx = self._u[0]
-        v = vx if vx == vx else float(zeta[0])
-        return [vy, r, math.atan2(vy, v) if v > 0.0 else 0.0]
+        return self._last.tolist()
 
     def zeta_hat(self) -> np.ndarray:
         """Copy of the current ``zeta_hat = (v_x, v_y, psi_hat, r, f_yf [kN], f_yr [kN])``: (6,) array."""

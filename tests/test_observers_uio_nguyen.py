@@ -291,3 +291,124 @@ def test_mujoco_double_lane_change_runs_with_finite_metrics() -> None:
     assert len(sub) > 300 and np.all(np.isfinite(sub["value"].to_numpy()))
     vy = np.interp(sub["t_s"].to_numpy(), truth.frame["t_s"].to_numpy(), truth.frame["vy_mps"].to_numpy())
     assert np.sqrt(np.mean((sub["value"].to_numpy() - vy) ** 2)) < 0.3
+
+
+# ---- one compiled kernel shared by step() and run() ---------------------------------------------
+
+def _gappy_inputs(n: int = 2500, h: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
+    """(t, Y) of ``(v_x, r, a_x, delta)`` with random dropouts, a gyro outage past ``hold_s`` (prediction,
+    then re-seeding), a total outage, a repeated and an irregular time stamp; r ~ 0.45 rad/s so the
+    integrated gyro wraps past pi."""
+    t = np.arange(n) * h
+    vx = 14.0 + 4.0 * np.sin(2 * np.pi * t / 8.0)
+    delta = 0.05 + 0.05 * np.sin(2 * np.pi * 0.4 * t)
+    Y = np.column_stack([vx, vx * delta / 2.8, np.gradient(vx, h), delta])
+    gen = np.random.default_rng(5)
+    Y = Y + gen.normal(0.0, 1e-3, Y.shape)
+    Y[:5] = np.nan
+    Y[gen.random(Y.shape) < 0.15] = np.nan
+    Y[900:960, 1] = np.nan
+    Y[1500:1530] = np.nan
+    t = t.copy()
+    t[1200] = t[1199]
+    t[1800:] += 0.0037
+    return t, Y
+
+
+def _stepped(obs, t: np.ndarray, Y: np.ndarray, x0: dict[str, float] | None = None) -> np.ndarray:
+    obs.reset(float(t[0]), x0)
+    return np.array([obs.step(float(t[i]), Y[i]).x for i in range(len(t))])
+
+
+def test_run_is_one_compiled_call_equal_to_stepping_bit_for_bit(monkeypatch: pytest.MonkeyPatch) -> None:
+    import roadtruth.observers.uio_nguyen as module
+
+    t, Y = _gappy_inputs()
+    calls: list[int] = []
+    kernel = module.nguyen_run
+
+    def counted(tt: np.ndarray, *args: object) -> None:
+        calls.append(len(tt))
+        kernel(tt, *args)
+
+    monkeypatch.setattr(module, "nguyen_run", counted)
+    obs = create("uio_nguyen", SEDAN)
+    got = obs.run(t, Y).x
+    assert calls == [len(t)]   # the whole log in one compiled call, not a Python loop over step()
+    monkeypatch.undo()
+    ref = create("uio_nguyen", SEDAN)
+    want = _stepped(ref, t, Y)
+    assert np.all(np.isfinite(want)) and np.ptp(want, axis=0).min() > 0.0
+    assert np.nansum(Y[:, 1]) * 0.01 > np.pi   # the heading pseudo-output wrapped
+    assert got.tobytes() == want.tobytes(), np.abs(got - want).max(axis=0)
+    # run() leaves the observer where stepping leaves it: internal state and the next step agree
+    assert obs.zeta_hat().tobytes() == ref.zeta_hat().tobytes() and abs(ref._psi_m) <= np.pi
+    assert obs.step(float(t[-1]) + 0.01, Y[-3]).x.tobytes() == ref.step(float(t[-1]) + 0.01, Y[-3]).x.tobytes()
+    # a run split in two (a host resuming) gives the same bits as one call
+    split = create("uio_nguyen", SEDAN)
+    first = split.run(t[:1300], Y[:1300]).x
+    rest = np.array([split.step(float(t[i]), Y[i]).x for i in range(1300, len(t))])
+    assert np.vstack([first, rest]).tobytes() == got.tobytes()
+
+
+def test_run_from_initial_state_equals_stepping() -> None:
+    t, Y = _gappy_inputs()
+    x0 = {"vy_mps": 0.4, "yaw_rate_radps": -0.1}
+    got = create("uio_nguyen", SEDAN).run(t, Y, x0).x
+    want = _stepped(create("uio_nguyen", SEDAN), t, Y, x0)
+    assert want[2, 0] == 0.4 and want[2, 1] == -0.1   # before the first sample the estimate is x0
+    assert got.tobytes() == want.tobytes()
+
+
+def test_compiled_kernel_reproduces_the_plain_python_update() -> None:
+    """The kernel against an independent plain-Python transcription of the update (1.10) + latch."""
+    t, Y = _gappy_inputs(2000)
+    obs = create("uio_nguyen", SEDAN)
+    got = obs.run(t, Y).x
+    Fs, Gs, Qz, Ms, Gp, bounds = obs.constants()
+    lo, hi, hold, d2 = 5.0, 30.0, 0.1, 0.1
+    u, tl = [math.nan] * 4, [-math.inf] * 4
+    zeta, eta, w_prev, u_prev = np.zeros(6), np.zeros(6), np.zeros(5), None
+    psi, r_prev, t_r_prev, tracking, started, t_cur = 0.0, math.nan, math.nan, False, False, float(t[0])
+    want = []
+    for ts, row in zip(t.tolist(), Y.tolist(), strict=True):
+        fresh = [v == v for v in row]
+        for j, v in enumerate(row):
+            if v == v:
+                u[j], tl[j] = v, ts
+        h = ts - t_cur if ts > t_cur else 0.0
+        t_cur = max(t_cur, ts)
+        vx, r, ax, de = u
+        if started or vx == vx:
+            if not started:
+                zeta[0], started = vx, True
+            if fresh[1]:
+                if r_prev == r_prev and tracking:
+                    psi += 0.5 * (ts - t_r_prev) * (r_prev + r)
+                r_prev, t_r_prev = r, ts
+            v = min(max(vx if vx == vx else zeta[0], lo), hi)
+            u1 = np.array([ax if ax == ax else 0.0, de if de == de else 0.0])
+            u0, u_prev = (u_prev if u_prev is not None else u1), u1
+            if not (r == r and vx == vx and ts - min(tl[0], tl[1]) <= hold):
+                tracking = False
+                if h > 0.0:
+                    affine_rk4.py_func(zeta, Ms, Gp, u0, u1, v, 1.0 / v, h, max(1, math.ceil(h * bounds[1] / 0.5)))
+            elif not tracking:
+                psi, tracking = zeta[2] + d2 * zeta[4], True
+                w_prev = np.array([vx, psi, r, *u1])
+                eta = zeta - Qz @ w_prev[:3]
+            else:
+                if abs(psi) > math.pi:
+                    c = 2.0 * math.pi * round(psi / (2.0 * math.pi))
+                    psi -= c
+                    eta[2] -= c
+                    eta += c * Qz[:, 1]
+                    w_prev[1] -= c
+                w1 = np.array([vx, psi, r, *u1])
+                if h > 0.0:
+                    affine_rk4.py_func(eta, Fs, Gs, w_prev, w1, v, 1.0 / v, h, max(1, math.ceil(h * bounds[0] / 0.5)))
+                w_prev = w1
+                zeta = eta + Qz @ w1[:3]
+        v = u[0] if u[0] == u[0] else zeta[0]
+        want.append([zeta[1], zeta[3], math.atan2(zeta[1], v) if v > 0.0 else 0.0])
+    np.testing.assert_allclose(got, np.array(want), rtol=0.0, atol=1e-12)
