@@ -49,26 +49,33 @@ camera samples are aged by ``camera_latency_s`` (their bounds widened by the dri
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from roadtruth.harness.errors import InputError
-from roadtruth.observers.base import ScalarLoopObserver
-from roadtruth.observers.bicycle import expm2_zoh
+from roadtruth.observers.base import EstimateTrack, ScalarLoopObserver, StepOutput
 from roadtruth.observers.lmi import DesignFailed, DesignResult, DesignStatus
 from roadtruth.observers.registry import register
-
-
-def _mul(a: float, lo: float, hi: float) -> tuple[float, float]:
-    """Bounds of ``a x`` for ``x`` in ``[lo, hi]`` (Lemma 3(1), scalar)."""
-    return (a * lo, a * hi) if a >= 0.0 else (a * hi, a * lo)
-
-
-def _mul_ii(al: float, ah: float, bl: float, bh: float) -> tuple[float, float]:
-    """Bounds of ``a b`` for ``a`` in ``[al, ah]`` and ``b`` in ``[bl, bh]``."""
-    p = (al * bl, al * bh, ah * bl, ah * bh)
-    return min(p), max(p)
+from roadtruth.observers.switched_interval_loop import (
+    DWELL_VIOLATIONS,
+    E_H,
+    E_MODE,
+    FW1,
+    FW2,
+    INCONSISTENT,
+    MODE,
+    N_PAR,
+    N_STATE,
+    OUT_OF_BAND,
+    P_DWELL,
+    SWITCHES,
+    T_CUR,
+    T_SWITCH,
+    bounds,
+    switched_run,
+)
 
 
 @register
@@ -125,6 +132,10 @@ class SwitchedIntervalIfqir(ScalarLoopObserver):
         self._vmin = float(o["vx_min_mps"])
         self._modes: list[tuple[float, ...]] | None = None
         self.dwell_time_s = 0.0
+        # the kernel's scalar parameters (layout P_* of roadtruth.observers.switched_interval_loop)
+        self._par = np.array([self._vr, self._vpsi, self._vyl, self._vv, self._lat, self._rho, self._ls,
+                              self._vmin, self._zeta, 0.0])
+        assert self._par.shape == (N_PAR,)
 
     def _compute_design(self) -> DesignResult:
         from roadtruth.observers.switched_interval_design import design_for
@@ -159,6 +170,8 @@ class SwitchedIntervalIfqir(ScalarLoopObserver):
             i += 1
         self.dwell_time_s = float(d.margins["dwell_time_s"])
         self._modes = [tuple(float(x) for x in m) for m in modes]
+        self._modes_arr = np.ascontiguousarray(np.array(self._modes, dtype=float).reshape(len(modes), 21))
+        self._par[P_DWELL] = self.dwell_time_s
 
     # ---- state -------------------------------------------------------------------------------------
     def _initial_state(self) -> list[float]:
@@ -169,156 +182,84 @@ class SwitchedIntervalIfqir(ScalarLoopObserver):
         c = self._z
         hw = (float(o["initial_vy_halfwidth_mps"]), float(o["initial_r_halfwidth_radps"]),
               float(o["initial_psi_halfwidth_rad"]), float(o["initial_y_halfwidth_m"]))
-        self._lo = [c[k] - hw[k] for k in range(4)]
-        self._hi = [c[k] + hw[k] for k in range(4)]
-        self._zl = [0.0, 0.0]
-        self._zh = [0.0, 0.0]
-        self._mode = -1
-        self._dprev = self._vprev = 0.0
-        self._fw = (0.0, 0.0)
-        self._t_switch = -math.inf
-        self.dwell_violations = 0
-        self.out_of_band_steps = 0
-        self.inconsistent_steps = 0
-        self.switches = 0
+        # the kernel's carried state (roadtruth.observers.switched_interval_loop.switched_run), in place
+        self._ku, self._kfresh, self._ktl = np.full(5, math.nan), np.zeros(5, dtype=np.bool_), np.full(5, -math.inf)
+        self._lo = np.array([c[k] - hw[k] for k in range(4)])
+        self._hi = np.array([c[k] + hw[k] for k in range(4)])
+        self._zl, self._zh = np.zeros(2), np.zeros(2)
+        self._ks = np.zeros(N_STATE)
+        self._ks[T_CUR], self._ks[MODE], self._ks[T_SWITCH] = self._t, -1.0, -math.inf
+        self._ks[E_MODE], self._ks[E_H] = -1.0, math.nan
+        self._eg = np.zeros(8)
+        blo, bhi = np.empty(5), np.empty(5)
+        bounds(math.nan, self._lo, self._hi, self._par, blo, bhi)  # the initial box
+        self._last = (0.5 * (blo + bhi), blo, bhi)
+
+    # counters of the carried state (see the module docstring)
+    @property
+    def dwell_violations(self) -> int:
+        """Switches sooner than the dwell time after the previous one."""
+        return int(self._ks[DWELL_VIOLATIONS])
+
+    @property
+    def out_of_band_steps(self) -> int:
+        """Steps with ``v_x`` outside every mode's band (no guarantee there)."""
+        return int(self._ks[OUT_OF_BAND])
+
+    @property
+    def inconsistent_steps(self) -> int:
+        """Steps where the model's bound on ``r`` was disjoint from the gyro's (measurement kept)."""
+        return int(self._ks[INCONSISTENT])
+
+    @property
+    def switches(self) -> int:
+        """Mode switches so far."""
+        return int(self._ks[SWITCHES])
 
     def z_bounds(self) -> tuple[list[float], list[float]]:
         """Bounds of ``z_1, z_2`` (the ``(v_y, r)`` rows of ``z = P x``) of the current mode."""
-        return list(self._zl), list(self._zh)
+        return self._zl.tolist(), self._zh.tolist()
 
     def forcing_width(self) -> tuple[float, float]:
         """Width ``Delta`` of the forcing of ``z_1, z_2`` over the last step (the ISS input of (29))."""
-        return self._fw
+        return float(self._ks[FW1]), float(self._ks[FW2])
 
     def mode(self) -> int:
         """Active mode index (-1 before the first step with ``delta``, ``r``, ``v_x``)."""
-        return self._mode
+        return int(self._ks[MODE])
 
-    def _select_mode(self, v: float, t_s: float, rl: float, rh: float) -> None:
-        modes = self._modes if self._modes is not None else self.mode_constants()
-        cur = self._mode
-        if cur >= 0 and modes[cur][1] <= v <= modes[cur][2]:
-            return
-        inside = [i for i, m in enumerate(modes) if m[1] <= v <= m[2]]
-        pool = inside or list(range(len(modes)))
-        new = min(pool, key=lambda i: (abs(modes[i][0] - v), i))
-        if not inside:
-            self.out_of_band_steps += 1
-        if new == cur:
-            return
-        if cur >= 0:
-            self.switches += 1
-            if t_s - self._t_switch < self.dwell_time_s:
-                self.dwell_violations += 1
-        self._t_switch = t_s
-        self._mode = new
-        m = modes[new]
-        h1, h2 = m[11], m[12]
-        # z = x + H y with y = r in [rl, rh] (Lemma 3(1)); x^± is kept across the switch
-        a, bb = _mul(h1, rl, rh)
-        self._zl[0], self._zh[0] = self._lo[0] + a, self._hi[0] + bb
-        a, bb = _mul(h2, rl, rh)
-        self._zl[1], self._zh[1] = self._lo[1] + a, self._hi[1] + bb
+    def _compiled(self, t: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Advance through ``t`` (n,) [s], ``Y`` (n, 5) in the shared kernel; (x, lo, hi), each (n, 5)."""
+        if self._modes is None:
+            self._load()   # a failed design raises here
+        n = t.shape[0]
+        x, lo, hi = np.empty((n, 5)), np.empty((n, 5)), np.empty((n, 5))
+        switched_run(t, Y, self._ku, self._kfresh, self._ktl, self._lo, self._hi, self._zl, self._zh, self._ks,
+                     self._eg, self._modes_arr, self._par, x, lo, hi)
+        if n:
+            self._last = (x[-1].copy(), lo[-1].copy(), hi[-1].copy())
+        return x, lo, hi
+
+    def step(self, t_s: float, y: np.ndarray) -> StepOutput:
+        """One sample through the compiled kernel (the same code ``run()`` loops in, so the same bits)."""
+        x, lo, hi = self._compiled(np.array([float(t_s)]),
+                                   np.ascontiguousarray(np.asarray(y, dtype=float).reshape(1, 5)))
+        return StepOutput(x[0], lo[0], hi[0])
+
+    def run(self, t: np.ndarray, Y: np.ndarray, x0: Mapping[str, float] | None = None) -> EstimateTrack:
+        """Reset at ``t[0]`` and advance through the whole log in one compiled call (equal to stepping)."""
+        t = np.ascontiguousarray(t, dtype=float)
+        Y = np.ascontiguousarray(np.asarray(Y, dtype=float).reshape(len(t), len(self.inputs)))
+        if len(t):
+            self.reset(float(t[0]), x0)
+        x, lo, hi = self._compiled(t, Y)
+        return EstimateTrack(self.name, tuple(self.states), t, x, lo, hi)
 
     def _advance(self, t_s: float, y: list[float]) -> None:
-        h = self._tick(t_s, y)
-        r_m, delta, v, psi_m, yl_m = self._u
-        lo, hi = self._lo, self._hi
-        if delta != delta or v != v or (r_m != r_m and self._mode < 0):
-            return  # not started: the initial box is reported
-        fresh = self._fresh
-        if self._mode < 0:
-            self._dprev, self._vprev = delta, v
-            lo[1], hi[1] = r_m - self._vr, r_m + self._vr  # the latest gyro sample
-        # Sampled data: over the step a signal is taken within the hull of its two end samples
-        # (exact for a signal monotone over 10 ms; the stiffness slack covers the O(h^2) rest).
-        # lo[1], hi[1] still hold the bounds of r at the previous step.
-        if fresh[0]:
-            r0l, r0h = r_m - self._vr, r_m + self._vr        # r now
-            rl, rh = min(lo[1], r0l), max(hi[1], r0h)        # r over the step
-        else:
-            r0l, r0h = rl, rh = lo[1], hi[1]
-        self._select_mode(v, t_s, lo[1], hi[1])
-        dprev, vprev = self._dprev, self._vprev
-        self._dprev, self._vprev = delta, v
-        if h <= 0.0:
-            return
-        m = self._modes  # type: ignore[index]
-        (v_c, _, _, n11, n12, n21, n22, m1, m2, g1, g2, h1, h2, d11, d12, d21, d22, pb1, pb2, p1,
-         p2) = m[self._mode]  # type: ignore[index]
-        vl, vh = min(v, vprev) - self._vv, max(v, vprev) + self._vv
-        zeta = self._zeta
-        ul, uh = min(delta, dprev) - zeta, max(delta, dprev) + zeta
-        xb1 = max(abs(lo[0]), abs(hi[0]))
-        xb2 = max(abs(rl), abs(rh))
-        au = max(abs(ul), abs(uh))
-        w1 = d11 * xb1 + d12 * xb2 + pb1 * au
-        w2 = d21 * xb1 + d22 * xb2 + pb2 * au
-        kl, kh = _mul_ii(v_c - vh, v_c - vl, rl, rh)      # (v_i - v_x) r, kinematic term of A
-        a1l, a1h = _mul(m1, rl, rh)
-        a2l, a2h = _mul(m2, rl, rh)
-        k1l, k1h = _mul(p1, kl, kh)
-        k2l, k2h = _mul(p2, kl, kh)
-        f1l = a1l + g1 * ul + k1l - w1      # g >= 0: P >= 0 and B0 >= 0
-        f1h = a1h + g1 * uh + k1h + w1
-        f2l = a2l + g2 * ul + k2l - w2
-        f2h = a2h + g2 * uh + k2h + w2
-        self._fw = (f1h - f1l, f2h - f2l)
-        E, Gm = expm2_zoh(n11, n12, n21, n22, h)
-        zl, zh = self._zl, self._zh
-        zl0 = E[0] * zl[0] + E[1] * zl[1] + Gm[0] * f1l + Gm[1] * f2l
-        zl1 = E[2] * zl[0] + E[3] * zl[1] + Gm[2] * f1l + Gm[3] * f2l
-        zh0 = E[0] * zh[0] + E[1] * zh[1] + Gm[0] * f1h + Gm[1] * f2h
-        zh1 = E[2] * zh[0] + E[3] * zh[1] + Gm[2] * f1h + Gm[3] * f2h
-        zl[0], zl[1], zh[0], zh[1] = zl0, zl1, zh0, zh1
-        old_vyh, old_vyl = hi[0], lo[0]
-        a, bb = _mul(h1, r0l, r0h)
-        lo[0], hi[0] = zl0 - bb, zh0 - a
-        a, bb = _mul(h2, r0l, r0h)
-        x2l, x2h = zl1 - bb, zh1 - a
-        if fresh[0]:
-            x2l, x2h = max(x2l, r0l), min(x2h, r0h)   # both are valid enclosures of r
-            if x2l > x2h:
-                # Empty: the plant left the model (e.g. tire saturation). Keep the measurement, count it.
-                self.inconsistent_steps += 1
-                x2l, x2h = r0l, r0h
-        lo[1], hi[1] = x2l, x2h
-        self._lane(h, vl, vh, psi_m, yl_m, fresh[3], fresh[4], min(rl, x2l), max(rh, x2h),
-                   min(old_vyl, lo[0]), max(old_vyh, hi[0]))
-
-    def _lane(self, h: float, vl: float, vh: float, psi_m: float, yl_m: float, new_psi: bool,
-              new_y: bool, rl: float, rh: float, vyl: float, vyh: float) -> None:
-        """Lane bounds: camera sample ± noise (± drift over its age), else open-loop propagation."""
-        lo, hi = self._lo, self._hi
-        ls, rho = self._ls, self._rho
-        vpos = max(vh, 0.0)
-        # psi_L' = r - v rho ; worst case over the step
-        dpl, dph = rl - vpos * rho, rh + vpos * rho
-        pl, ph = lo[2] + h * dpl, hi[2] + h * dph
-        psi_max, psi_min = max(hi[2], ph), min(lo[2], pl)
-        # y_L' = v_y + l_s r + v psi_L - l_s v rho, v in [vl, vh]
-        vpl, vph = _mul_ii(vl, vh, psi_min, psi_max)
-        dyl = vyl + ls * rl + vpl - ls * vpos * rho
-        dyh = vyh + ls * rh + vph + ls * vpos * rho
-        yl, yh = lo[3] + h * dyl, hi[3] + h * dyh
-        lat = self._lat
-        # a sample taken `lat` ago: the state has since moved by the integral of its rate bounds
-        if new_psi:
-            pl, ph = psi_m - self._vpsi + lat * dpl, psi_m + self._vpsi + lat * dph
-        if new_y:
-            yl, yh = yl_m - self._vyl + lat * dyl, yl_m + self._vyl + lat * dyh
-        lo[2], hi[2], lo[3], hi[3] = pl, ph, yl, yh
+        self.step(t_s, np.array(y, dtype=float))
 
     def _bounds(self) -> tuple[list[float], list[float]]:
-        lo, hi = self._lo, self._hi
-        v = self._u[2]
-        if v != v:
-            return [lo[0], lo[1], lo[2], lo[3], -0.5 * math.pi], [hi[0], hi[1], hi[2], hi[3], 0.5 * math.pi]
-        vl, vh = max(v - self._vv, self._vmin), max(v + self._vv, self._vmin)
-        bh = math.atan(hi[0] / (vl if hi[0] >= 0.0 else vh))
-        bl = math.atan(lo[0] / (vh if lo[0] >= 0.0 else vl))
-        return [lo[0], lo[1], lo[2], lo[3], bl], [hi[0], hi[1], hi[2], hi[3], bh]
+        return self._last[1].tolist(), self._last[2].tolist()
 
     def _values(self) -> list[float]:
-        lo, hi = self._bounds()
-        return [0.5 * (a + b) for a, b in zip(lo, hi, strict=True)]
+        return self._last[0].tolist()

@@ -301,3 +301,83 @@ def test_dwell_time_is_checked_by_the_mode_logic() -> None:
     switch_t = t[1:][np.diff(modes_a) != 0]
     assert obs.switches == len(switch_t) >= 5
     assert obs.dwell_violations == int(np.sum(np.diff(switch_t) < tau)) >= 1
+
+
+# ---- one compiled kernel shared by step() and run() -----------------------------------------------------
+
+def _switching_inputs(n: int = 4000, h: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
+    """(t, Y) of ``(r, delta, v_x, psi_L, y_L)``: a speed sweep through every band and out of them, speed
+    chatter across two bands, a yaw-rate jump the model cannot follow, random dropouts, a 20 Hz camera
+    with a marking gap, a total outage, a repeated and an irregular time stamp."""
+    t = np.arange(n) * h
+    vx = 20.0 + 13.0 * np.sin(2 * np.pi * t / 15.0)
+    vx[1200:1300] = np.where(np.arange(100) % 60 < 30, 23.0, 16.5)
+    delta = 0.03 * np.sin(2 * np.pi * 0.5 * t)
+    r = vx * delta / 2.8
+    r[3300:3320] += 0.4
+    Y = np.column_stack([r, delta, vx, np.cumsum(r) * h * 0.1, 0.3 * np.sin(t)])
+    gen = np.random.default_rng(3)
+    Y = Y + gen.normal(0.0, 1e-3, Y.shape)
+    Y[gen.random(Y.shape) < 0.1] = np.nan
+    Y[:3] = np.nan
+    Y[:, 3:][np.arange(n) % 5 != 0] = np.nan
+    Y[2000:2100, 3:] = np.nan
+    Y[2500:2520] = np.nan
+    t = t.copy()
+    t[1500] = t[1499]
+    t[3000:] += 0.0041
+    return t, Y
+
+
+def _stepped(obs: SwitchedIntervalIfqir, t: np.ndarray, Y: np.ndarray,
+             x0: dict[str, float] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    obs.reset(float(t[0]), x0)
+    outs = [obs.step(float(t[i]), Y[i]) for i in range(len(t))]
+    return tuple(np.array([getattr(o, f) for o in outs]) for f in ("x", "lo", "hi"))  # type: ignore[return-value]
+
+
+@pytest.mark.parametrize("opts", [{}, {"common_Q": False, "noise_bound_r_radps": 0.001}], ids=["common_Q", "per_mode_Q"])
+def test_run_is_one_compiled_call_equal_to_stepping_bit_for_bit(opts: dict, monkeypatch: pytest.MonkeyPatch) -> None:
+    import roadtruth.observers.switched_interval as module
+
+    t, Y = _switching_inputs()
+    calls: list[int] = []
+    kernel = module.switched_run
+
+    def counted(tt: np.ndarray, *args: object) -> None:
+        calls.append(len(tt))
+        kernel(tt, *args)
+
+    monkeypatch.setattr(module, "switched_run", counted)
+    obs = create("switched_interval_ifqir", SEDAN, **opts)
+    got = obs.run(t, Y)
+    assert calls == [len(t)]   # the whole log in one compiled call
+    monkeypatch.undo()
+    ref = create("switched_interval_ifqir", SEDAN, **opts)
+    x, lo, hi = _stepped(ref, t, Y)
+    for a, b in ((got.x, x), (got.lo, lo), (got.hi, hi)):
+        assert a.tobytes() == b.tobytes(), np.abs(a - b).max(axis=0)
+    assert np.all(np.isfinite(x)) and np.all(lo <= hi)
+    # every branch ran: switches, out-of-band speeds, an inconsistent gyro step (per-mode Q: dwell violations)
+    assert ref.switches >= 10 and ref.out_of_band_steps > 0
+    assert (ref.inconsistent_steps > 0 and ref.dwell_violations > 0) if opts else ref.dwell_violations == 0
+    # run() leaves the observer where stepping leaves it: counters, mode, z bounds and the next step agree
+    assert (obs.switches, obs.dwell_violations, obs.out_of_band_steps, obs.inconsistent_steps, obs.mode()) == \
+        (ref.switches, ref.dwell_violations, ref.out_of_band_steps, ref.inconsistent_steps, ref.mode())
+    assert obs.z_bounds() == ref.z_bounds() and obs.forcing_width() == ref.forcing_width()
+    a, b = obs.step(float(t[-1]) + 0.01, Y[-5]), ref.step(float(t[-1]) + 0.01, Y[-5])
+    assert a.x.tobytes() == b.x.tobytes() and a.lo.tobytes() == b.lo.tobytes()
+    # a run split in two (a host resuming) gives the same bits as one call
+    split = create("switched_interval_ifqir", SEDAN, **opts)
+    first = split.run(t[:1700], Y[:1700]).hi
+    rest = np.array([split.step(float(t[i]), Y[i]).hi for i in range(1700, len(t))])
+    assert np.vstack([first, rest]).tobytes() == got.hi.tobytes()
+
+
+def test_run_from_initial_state_equals_stepping() -> None:
+    t, Y = _switching_inputs(2000)
+    x0 = {"vy_mps": 0.4, "yaw_rate_radps": -0.1}
+    got = create("switched_interval_ifqir", SEDAN).run(t, Y, x0)
+    x, lo, hi = _stepped(create("switched_interval_ifqir", SEDAN), t, Y, x0)
+    assert lo[1, 0] == 0.4 - 1.0 and hi[1, 1] == -0.1 + 0.5   # before the first sample: the initial box around x0
+    assert got.x.tobytes() == x.tobytes() and got.lo.tobytes() == lo.tobytes() and got.hi.tobytes() == hi.tobytes()
