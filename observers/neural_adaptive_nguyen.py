@@ -45,6 +45,7 @@ from roadtruth.observers.neural_adaptive_nguyen_loop import N_PAR, N_STATE, nao_
 from roadtruth.observers.registry import register
 from roadtruth.observers.uio_nguyen import NguyenUIO
 from roadtruth.observers.uio_nguyen_design import N_MU, N_X, vehicle_model
+from roadtruth.observers.uio_nguyen_loop import T_CUR
 
 HIDDEN = 32
 N_IN = 4
@@ -107,6 +108,7 @@ class NeuralAdaptiveNguyen(ScalarLoopObserver):
         self._Ty = np.array([1.0, 100.0, 100.0])
         self._Tu = np.array([1.0, 10.0, 0.0, 10.0])
         self._kconst: tuple[np.ndarray, ...] | None = None   # the kernel's constants, built at the first step
+        self._t1, self._y1 = np.zeros(1), np.zeros((1, N_IN))
 
     def _compute_design(self) -> DesignResult:
         from roadtruth.observers.neural_adaptive_nguyen_design import design_for
@@ -149,13 +151,8 @@ class NeuralAdaptiveNguyen(ScalarLoopObserver):
         self._ktl = np.full(N_IN, -math.inf)
         self.loss_trace: list[float] = []
         self._out = np.array([self._z[0], self._z[1], 0.0])   # last estimates (vy, r, beta)
-        teacher = self._teacher
-        teacher.reset(self._t, {"vy_mps": self._z[0], "yaw_rate_radps": self._z[1]})
-        # the teacher's arrays, advanced in place by the kernel; its scalars in _tstate
-        self._t_eta, self._t_zeta = teacher._eta, teacher._zeta
-        self._t_wprev, self._t_uprev = teacher._w_prev, np.zeros(2)
-        self._tstate = np.array([teacher._psi_m, teacher._r_prev, teacher._t_r_prev, float(teacher._tracking),
-                                 float(teacher._started), 0.0])
+        # the teacher's own state arrays, advanced in place by the kernel (its latch is this observer's)
+        self._teacher.reset(self._t, {"vy_mps": self._z[0], "yaw_rate_radps": self._z[1]})
 
     def _constants(self) -> tuple[np.ndarray, ...]:
         """The kernel's constant arrays; raises DesignFailed if the teacher's design has no gains."""
@@ -183,11 +180,16 @@ class NeuralAdaptiveNguyen(ScalarLoopObserver):
     def _compiled(self, t: np.ndarray, Y: np.ndarray) -> np.ndarray:
         """Advance through ``t`` (n,) [s], ``Y`` (n, 4) in the shared kernel; the (n, 3) estimates."""
         model, Bu, Bmu, L, Ty, Tu, weights, par, Fs, Gs, Qz, Ms, Gp, bounds, tpar = self._constants()
+        if t is not self._t1:
+            # writeable C arrays: numba compiles a second copy of the kernel for read-only ones
+            t, Y = (np.require(a, dtype=float, requirements=("C", "W")) for a in (t, Y))
+        te = self._teacher
         X, losses = nao_run(t, Y, self._klatch, self._ku, self._kfresh, self._ktl, self._x, self._theta, self._S,
                             self._g, self._m, self._v, self._mu, self._ring, self._kstate, model, Bu, Bmu, L, Ty, Tu,
-                            weights, par, self._t_eta, self._t_zeta, self._t_wprev, self._t_uprev, self._tstate, Fs,
-                            Gs, Qz, Ms, Gp, bounds, tpar)
-        self.loss_trace.extend(losses.tolist())
+                            weights, par, te._eta, te._zeta, te._w_prev, te._u_prev, te._ks, Fs, Gs, Qz, Ms, Gp,
+                            bounds, tpar)
+        if losses.shape[0]:
+            self.loss_trace.extend(losses.tolist())
         if self._kstate[8]:
             self._gain()   # a step needed the gain of a failed design: raises DesignFailed
         self._t = float(self._klatch[0])
@@ -197,8 +199,10 @@ class NeuralAdaptiveNguyen(ScalarLoopObserver):
 
     def step(self, t_s: float, y: np.ndarray) -> StepOutput:
         """One sample through the compiled kernel (the code ``run()`` loops in, so the same bits)."""
-        X = self._compiled(np.array([float(t_s)]), np.ascontiguousarray(np.asarray(y, dtype=float).reshape(1, N_IN)))
-        return StepOutput(X[0])
+        t1, y1 = self._t1, self._y1   # writeable one-row buffers (one compiled specialisation)
+        t1[0] = t_s
+        y1[0] = y
+        return StepOutput(self._compiled(t1, y1)[0])
 
     def run(self, t: np.ndarray, Y: np.ndarray, x0: Mapping[str, float] | None = None) -> EstimateTrack:
         """Reset at ``t[0]`` and advance through the whole log in one compiled call (equal to stepping)."""
@@ -231,17 +235,17 @@ class NeuralAdaptiveNguyen(ScalarLoopObserver):
         return 1000.0 * self._mu
 
     def teacher(self) -> NguyenUIO:
-        """The UIO whose estimate supervises the network, brought up to this observer's state.
+        """The UIO whose estimate supervises the network, at this observer's state (it shares the samples).
 
-        The kernel advances the teacher's state arrays in place; its scalars are copied in here. Stepping
-        the returned UIO on its own does not move this observer.
+        The kernel advances the teacher's own state arrays; its latch and last estimate are copied in
+        here, so that stepping the returned UIO continues from where this observer is.
         """
-        te, ts = self._teacher, self._tstate
-        te._psi_m, te._r_prev, te._t_r_prev = (float(v) for v in ts[:3])
-        te._tracking, te._started = bool(ts[3]), bool(ts[4])
-        te._u_prev = self._t_uprev.copy() if ts[5] else None
-        te._t = float(self._klatch[0])
-        te._u, te._fresh, te._t_last = self._ku.tolist(), self._kfresh.tolist(), self._ktl.tolist()
+        te = self._teacher
+        te._ku[:], te._kfresh[:], te._ktl[:] = self._ku, self._kfresh, self._ktl
+        te._ks[T_CUR] = te._t = float(self._klatch[0])
+        z, vx = te._zeta, self._ku[0]
+        v = vx if vx == vx else z[0]
+        te._last = np.array([z[1], z[3], math.atan2(z[1], v) if v > 0.0 else 0.0])
         return te
 
 

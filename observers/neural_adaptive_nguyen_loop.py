@@ -1,7 +1,7 @@
 """The compiled kernel of the neural adaptive observers of Nguyen (:mod:`roadtruth.observers.neural_adaptive_nguyen`).
 
 :func:`nao_run` is the observers' whole per-sample update, teacher UIO included (the regularised
-UIO of :mod:`roadtruth.observers.uio_nguyen`, with its compiled :func:`affine_rk4`): latching the
+UIO's own compiled per-sample update, :mod:`roadtruth.observers.uio_nguyen_loop`): latching the
 inputs, the integrated gyro and its re-centring, the Euler sub-steps of the state, the loss
 gradient and forward sensitivity, Adam and the ensemble queue, on arrays carried between calls.
 ``NeuralAdaptiveNguyen.step()`` calls it with one sample and ``run()`` with the whole log, so both
@@ -21,7 +21,7 @@ The matrix-vector products of the ensemble correction and the teacher's ``Q y`` 
 are kept so that the estimates stay those of the earlier numpy implementation to the bit.
 
 numba caches each kernel per source file: after editing this file (or the kernels it calls in
-``observers/uio_nguyen.py``) delete ``observers/__pycache__/*.nbi, *.nbc``.
+``observers/uio_nguyen_loop.py``) delete ``observers/__pycache__/*.nbi, *.nbc``.
 """
 
 from __future__ import annotations
@@ -31,7 +31,8 @@ import math
 import numpy as np
 
 from roadtruth.harness.truth.tire import jit
-from roadtruth.observers.uio_nguyen import SUBSTEP_RATE, TWO_PI, affine_rk4
+from roadtruth.observers.uio_nguyen_loop import TWO_PI
+from roadtruth.observers.uio_nguyen_loop import _advance as teacher_advance  # the teacher's own update
 
 H = 32                  # hidden width of mu_theta (4-32-32-2)
 O1 = 0                  # offsets of W1 (32x4), b1, W2 (32x32), b2, W3 (2x32), b3 in theta
@@ -243,81 +244,6 @@ def substep(x: np.ndarray, S: np.ndarray, g: np.ndarray, theta: np.ndarray, A: n
 
 
 @jit
-def teacher_advance(ts: float, h: float, u: np.ndarray, fresh: np.ndarray, tl: np.ndarray, eta: np.ndarray,
-                    zeta: np.ndarray, w_prev: np.ndarray, u_prev: np.ndarray, ts_state: np.ndarray,
-                    Fs: np.ndarray, Gs: np.ndarray, Qz: np.ndarray, Ms: np.ndarray, Gp: np.ndarray,
-                    bounds: np.ndarray, tpar: np.ndarray, u0: np.ndarray, u1: np.ndarray, ym: np.ndarray,
-                    w1: np.ndarray, q: np.ndarray) -> None:
-    """``NguyenUIO._advance`` after the latch, in place. ``ts_state`` = ``(psi_m, r_prev, t_r_prev,
-    tracking, started, have_u_prev)``; ``tpar`` = ``(v_lo, v_hi, hold_s, delta2)``; ``u0``, ``u1``
-    (2,), ``ym`` (3,), ``w1`` (5,), ``q`` (6,) are scratch."""
-    vx, r, ax, delta = u[0], u[1], u[2], u[3]
-    if ts_state[4] == 0.0:
-        if vx != vx:
-            return
-        zeta[0] = vx
-        ts_state[4] = 1.0
-    tracking = ts_state[3] != 0.0
-    if fresh[1]:
-        if ts_state[1] == ts_state[1] and tracking:
-            ts_state[0] += 0.5 * (ts - ts_state[2]) * (ts_state[1] + r)
-        ts_state[1] = r
-        ts_state[2] = ts
-    v = vx if vx == vx else zeta[0]
-    v = tpar[0] if v < tpar[0] else (tpar[1] if v > tpar[1] else v)
-    u1[0] = ax if ax == ax else 0.0
-    u1[1] = delta if delta == delta else 0.0
-    src = u_prev if ts_state[5] != 0.0 else u1
-    u0[0] = src[0]
-    u0[1] = src[1]
-    u_prev[0] = u1[0]
-    u_prev[1] = u1[1]
-    ts_state[5] = 1.0
-    live = r == r and vx == vx and ts - min(tl[0], tl[1]) <= tpar[2]
-    if live and not tracking:
-        # (re)start: the integrated gyro restarts where the model's psi is, eta = zeta - Q y
-        psi = zeta[2] + tpar[3] * zeta[4]
-        ts_state[0] = psi
-        ts_state[3] = 1.0
-        w_prev[0], w_prev[1], w_prev[2], w_prev[3], w_prev[4] = vx, psi, r, u1[0], u1[1]
-        ym[0], ym[1], ym[2] = vx, psi, r
-        np.dot(Qz, ym, q)
-        for i in range(eta.shape[0]):
-            eta[i] = zeta[i] - q[i]
-        return
-    if live:
-        psi = ts_state[0]
-        if psi > math.pi or psi < -math.pi:
-            c = TWO_PI * np.rint(psi / TWO_PI)  # Python's round(): half to even
-            psi -= c
-            ts_state[0] = psi
-            eta[2] -= c
-            for i in range(eta.shape[0]):
-                eta[i] += c * Qz[i, 1]
-            w_prev[1] -= c
-        ym[0], ym[1], ym[2] = vx, psi, r
-        w1[0], w1[1], w1[2], w1[3], w1[4] = vx, psi, r, u1[0], u1[1]
-    else:
-        ts_state[3] = 0.0
-    if h > 0.0:
-        # one call site (the UIO's eta ODE when live, the model prediction of zeta otherwise), so
-        # the kernel is inlined once (compile time)
-        if live:
-            z, M, G, w_a, w_b, rate = eta, Fs, Gs, w_prev, w1, bounds[0]
-        else:
-            z, M, G, w_a, w_b, rate = zeta, Ms, Gp, u0, u1, bounds[1]
-        nsub = max(1, math.ceil(h * rate / SUBSTEP_RATE))
-        affine_rk4(z, M, G, w_a, w_b, v, 1.0 / v, h, nsub)
-    if not live:
-        return
-    for i in range(5):
-        w_prev[i] = w1[i]
-    np.dot(Qz, ym, q)
-    for i in range(eta.shape[0]):
-        zeta[i] = eta[i] + q[i]
-
-
-@jit
 def nao_run(t: np.ndarray, Y: np.ndarray, latch: np.ndarray, u: np.ndarray, fresh: np.ndarray, tl: np.ndarray,
             x: np.ndarray, theta: np.ndarray, S: np.ndarray, g: np.ndarray, m: np.ndarray, v: np.ndarray,
             mu: np.ndarray, queue: np.ndarray, state: np.ndarray, model: np.ndarray, Bu: np.ndarray,
@@ -330,7 +256,8 @@ def nao_run(t: np.ndarray, Y: np.ndarray, latch: np.ndarray, u: np.ndarray, fres
     In place: ``latch`` = ``(t_cur,)``, ``u``/``fresh``/``tl`` (4,) (the latch, shared with the
     teacher: both see the same samples), the network and learning arrays, ``queue`` (p, n_theta)
     ring of snapshots, ``state`` = ``(psi_m, r_prev, t_r_prev, started, adam_t, k, q_count,
-    q_head, needs_gain)`` and the teacher's arrays. ``model`` (3, 4, 4) = ``A0, A1, A2``;
+    q_head, needs_gain)`` and the teacher's own state arrays (``eta`` ... ``ts_state``, advanced by
+    the UIO's compiled per-sample update :func:`roadtruth.observers.uio_nguyen_loop._advance`). ``model`` (3, 4, 4) = ``A0, A1, A2``;
     ``weights`` (p,) = ``exp(-age)``; ``par`` = ``(dt_s, accumulate, learning_rate, clip,
     queue_size, teacher_weight, v_lo, v_hi, hold_s, has_gain)``.
 

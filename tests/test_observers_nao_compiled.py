@@ -113,9 +113,17 @@ def _check(name: str, t: np.ndarray, Y: np.ndarray, x0: dict[str, float] | None 
     np.testing.assert_array_equal(track.x, want)
     np.testing.assert_array_equal(mu_run, mus[-1])
     _assert_same_state(obs, ref)
-    # run() left the stepped state: the next step agrees
+    # the teacher is the regularised UIO on the same samples: equal to the UIO run on its own
+    uio = create("uio_nguyen", SEDAN)
+    x_uio = uio.run(t, Y, x0).x
+    np.testing.assert_array_equal(obs.teacher().zeta_hat(), uio.zeta_hat())
+    # run() left the stepped state: the next step agrees (the observer's, and its teacher's)
     t_next, y_next = float(t[-1]) + 0.01, np.nan_to_num(Y[-1], nan=0.02) * 1.001
     np.testing.assert_array_equal(obs.step(t_next, y_next).x, ref.step(t_next, y_next).x)
+    uio.step(t_next, y_next)
+    t2, y2 = t_next + 0.01, y_next * 1.001
+    np.testing.assert_array_equal(obs.teacher().step(t2, y2).x, uio.step(t2, y2).x)
+    assert np.ptp(x_uio, axis=0).min() > 0.0
     return want
 
 
