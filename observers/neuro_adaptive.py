@@ -142,6 +142,10 @@ class _LearningObserver(Observer):
         # bad gain option fails the run, not the construction)
         self._consts: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         self._disc: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        # step()'s one-row buffers (column 2 of the kernel input, the known lead input, stays 0)
+        self._t1, self._y1, self._hidx1 = np.zeros(1), np.zeros((1, 4)), np.zeros(1, dtype=np.int64)
+        self._out1 = (np.empty((1, 4)), np.empty((1, self._W0.size)), np.empty(1), np.empty(1))
+        self._dummy = np.zeros((1, 2, 4, 4))   # no step to discretise
         self.reset(0.0)
 
     def gains(self) -> np.ndarray:
@@ -180,40 +184,43 @@ class _LearningObserver(Observer):
         self._kst = np.array([0.0 if self._z0 is None else 1.0, np.nan, -np.inf, 0.0, 0.0])
         self._lw: np.ndarray | None = None
 
+    def _matrices(self, key: float, Acl: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(PHI, G0, G1)`` (1, 2, 4, 4) of a step ``key`` [s] (closed loop, open chain), cached."""
+        m = self._disc.get(key)
+        if m is None:
+            if len(self._disc) >= DISCRETISATION_CACHE:
+                self._disc.clear()
+            pairs = [exact_discretisation(A, key) for A in (Acl, nad.A_EXT)]
+            m = tuple(np.array([[pr[i] for pr in pairs]]) for i in range(3))
+            self._disc[key] = m
+        return m
+
     def _discretisation(self, t: np.ndarray, Acl: np.ndarray) -> tuple[np.ndarray, ...]:
-        """``(hidx, PHI, G0, G1)`` of the steps ending at ``t`` (the first from the kernel's last time)."""
+        """``(hidx, PHI, G0, G1)`` of the steps ending at ``t`` (the first from the kernel's last time).
+
+        Steps are matched to 1e-12 s; a positive step that rounds to 0 gets the unit step's
+        matrices, as the loop always has done."""
         n = t.shape[0]
-        if self.mode != MODE_CL:
-            return np.zeros(n, dtype=np.int64), np.zeros((1, 2, 4, 4)), np.zeros((1, 2, 4, 4)), np.zeros((1, 2, 4, 4))
+        if self.mode != MODE_CL or n == 0:
+            return np.zeros(n, dtype=np.int64), self._dummy, self._dummy, self._dummy
+        if n == 1:   # step(): one scalar step, no array bookkeeping
+            h = t[0] - self._kst[1]
+            if not h > 0.0:
+                return self._hidx1, self._dummy, self._dummy, self._dummy
+            key = float(np.float64(h).round(12))   # the same rounding as np.round on an array
+            return (self._hidx1, *self._matrices(key if key > 0.0 else 1.0, Acl))
         h = np.diff(t, prepend=self._kst[1])
-        # steps are matched to 1e-12 s; a positive step that rounds to 0 gets the unit step's
-        # matrices, as the loop always has done
         key = np.round(h, 12)
         key = np.where(key > 0.0, key, 1.0)
-        if n == 1:
-            uniq, inv = (key, np.zeros(1, dtype=np.int64)) if h[0] > 0.0 else (key[:0], np.zeros(1, dtype=np.int64))
-        else:
-            uniq, inv = np.unique(key[h > 0.0], return_inverse=True)
-            full = np.zeros(n, dtype=np.int64)
-            full[h > 0.0] = inv
-            inv = full
-        if len(self._disc) + len(uniq) > DISCRETISATION_CACHE:
-            self._disc.clear()
-        mats = []
-        for k in uniq.tolist():
-            m = self._disc.get(k)
-            if m is None:
-                pairs = [exact_discretisation(A, k) for A in (Acl, nad.A_EXT)]
-                m = tuple(np.array([pr[i] for pr in pairs]) for i in range(3))
-                self._disc[k] = m
-            mats.append(m)
-        if not mats:
-            mats = [(np.zeros((2, 4, 4)),) * 3]
-        if len(mats) == 1:
-            PHI, G0, G1 = (m[None] for m in mats[0])
-        else:
-            PHI, G0, G1 = (np.ascontiguousarray([m[i] for m in mats]) for i in range(3))
-        return inv, PHI, G0, G1
+        pos = h > 0.0
+        uniq, inv = np.unique(key[pos], return_inverse=True)
+        hidx = np.zeros(n, dtype=np.int64)
+        hidx[pos] = inv
+        if len(uniq) == 0:
+            return hidx, self._dummy, self._dummy, self._dummy
+        mats = [self._matrices(k, Acl) for k in uniq.tolist()]
+        PHI, G0, G1 = (np.concatenate([m[i] for m in mats]) for i in range(3))
+        return hidx, PHI, G0, G1
 
     def _kernel(self, t: np.ndarray, Y: np.ndarray) -> LearningTrack:
         """Advance the kernel state through ``t`` (n,) [s], ``Y`` (n, 4) (kernel columns)."""
@@ -251,10 +258,18 @@ class _LearningObserver(Observer):
 
     def step(self, t_s: float, y: np.ndarray) -> StepOutput:
         """One sample through the compiled kernel (the code ``run()`` loops in, so the same bits)."""
-        y = np.asarray(y, dtype=float).reshape(3)
-        row = np.array([[y[0], -y[2], 0.0, y[1]]])
-        tr = self._kernel(np.array([float(t_s)]), row)
-        return StepOutput(tr.z[0, :3].copy())
+        Lt, par, sat, Acl = self._constants()
+        if self._lw is None:
+            self._lw = np.ascontiguousarray(self._weight_gains(Lt, self._z0), dtype=float)
+        t1, y1 = self._t1, self._y1
+        t1[0] = t_s
+        y = np.asarray(y, dtype=float)
+        y1[0, 0], y1[0, 1], y1[0, 3] = y[0], -y[2], y[1]   # the columns of _relative_inputs
+        hidx, PHI, G0, G1 = self._discretisation(t1, Acl)
+        z, W, sm, f = self._out1
+        learning_run(t1, y1, hidx, PHI, G0, G1, Lt, self._lw, par, sat, self._kz, self._kW, self._kZ, self._kLam,
+                     self._klast, self._ktl, self._kslope, self._kst, z, W, sm, f)
+        return StepOutput(z[0, :3].copy())
 
     @staticmethod
     def _relative_inputs(Y: np.ndarray) -> np.ndarray:

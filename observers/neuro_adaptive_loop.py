@@ -158,14 +158,15 @@ def _chak_rhs(x: np.ndarray, W: np.ndarray, y: float, b2: float, b3: float, voff
 
 @jit
 def _chak_update(ti: float, h: float, Lt: np.ndarray, lw: np.ndarray, par: np.ndarray, z: np.ndarray,
-                 W: np.ndarray, last: np.ndarray, tl: np.ndarray, slope: np.ndarray, s: np.ndarray) -> None:
-    """One step ``h`` > 0 [s] of (3.4) ending at ``ti`` [s], RK4 sub-steps of at most ``par[6]`` [s]."""
+                 W: np.ndarray, last: np.ndarray, tl: np.ndarray, slope: np.ndarray, s: np.ndarray,
+                 kx: np.ndarray, kw: np.ndarray) -> None:
+    """One step ``h`` > 0 [s] of (3.4) ending at ``ti`` [s], RK4 sub-steps of at most ``par[6]`` [s];
+    ``kx`` (4, 3), ``kw`` (4, N): scratch for the RK4 stages."""
     hold, hmax = par[5], par[6]
-    N = W.shape[0]
     L0 = Lt[:3]
     x = z[:3].copy()
-    k1x, k2x, k3x, k4x = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
-    k1w, k2w, k3w, k4w = np.zeros(N), np.zeros(N), np.zeros(N), np.zeros(N)
+    k1x, k2x, k3x, k4x = kx[0], kx[1], kx[2], kx[3]
+    k1w, k2w, k3w, k4w = kw[0], kw[1], kw[2], kw[3]
     use_y = (ti - tl[0]) <= hold
     m = int(math.ceil(h / hmax))
     hs = h / m
@@ -215,6 +216,8 @@ def learning_run(t: np.ndarray, Y: np.ndarray, hidx: np.ndarray, PHI: np.ndarray
     s = np.zeros(N)
     rhs0 = np.zeros(4)
     rhs1 = np.zeros(4)
+    kx = np.zeros((4, 3))
+    kw = np.zeros((4, N))
     for i in range(t.shape[0]):
         ti = t[i]
         for c in range(4):
@@ -238,7 +241,7 @@ def learning_run(t: np.ndarray, Y: np.ndarray, hidx: np.ndarray, PHI: np.ndarray
                 _cl_update(ti, h, hidx[i], PHI, G0, G1, Lt, par, sat, z, W, Z, Lam, last, tl, slope, st, s,
                            rhs0, rhs1)
             else:
-                _chak_update(ti, h, Lt, lw, par, z, W, last, tl, slope, s)
+                _chak_update(ti, h, Lt, lw, par, z, W, last, tl, slope, s, kx, kw)
         voff = last[3] if last[3] == last[3] else 0.0
         if mode == MODE_CL:
             regressor(kind, rho(z[0], sat[0]), rho(z[1] + voff, sat[1]), rho(z[2], sat[2]), s)
