@@ -3,6 +3,11 @@
 The truth is the design model simulated here (RK4, 1 ms, the input's breakpoints on the grid); the
 observers get the position only and the known input u, and start from x_hat = (0, 18, 0.5, 0)
 against x(0) = (0, 20, 0) (the thesis gives no initial conditions).
+
+The four observers run one compiled kernel shared by step(), run() and run_model(): stepping one
+sample at a time equals run() bit for bit (estimates, weights, history stack, latch) through radar
+dropouts and outages, a repeated and an irregular time stamp, from x0 and on MuJoCo car following,
+and read-only logs do not compile a second copy of the kernel.
 """
 
 from __future__ import annotations
