@@ -172,8 +172,10 @@ if os.environ.get("ROADTRUTH_TEST_SOLVE_LOG"):
 
     def _counted(payload, compute, **kw):
         def solve():
-            with open(os.environ["ROADTRUTH_TEST_SOLVE_LOG"], "a") as f:
-                f.write(f"{os.getpid()} {_lmi.design_key(payload)}\\n")
+            log = os.environ.get("ROADTRUTH_TEST_SOLVE_LOG")  # a host may outlive the test's environment
+            if log:
+                with open(log, "a") as f:
+                    f.write(f"{os.getpid()} {_lmi.design_key(payload)}\\n")
             return compute()
         return _cached_design(payload, solve, **kw)
 
@@ -216,7 +218,10 @@ def test_parallel_workers_on_a_fresh_cache_solve_each_design_once(cache_root: Pa
     monkeypatch.setenv(CACHE_ENV, str(tmp_path / "cache2"))
     from roadtruth.harness.evaluation import observer_host
     observer_host.shutdown()  # a host this process started earlier would lack the logger
-    ser = run_stress(out=tmp_path / "ser", jobs=1, **kw)  # type: ignore[arg-type]
+    try:
+        ser = run_stress(out=tmp_path / "ser", jobs=1, **kw)  # type: ignore[arg-type]
+    finally:
+        observer_host.shutdown()  # ... and the host started here, with the logger, must not serve later tests
     assert len(_solves(log)) == 2 and _solves(log)[1][1] == solves[0][1]
     a, b = (pd.read_csv(f / "stress.csv").drop(columns=["us_per_step"]) for f in (par, ser))
     pd.testing.assert_frame_equal(a, b, check_exact=True)

@@ -195,7 +195,7 @@ def test_mujoco_suite_rows(tmp_path) -> None:
     m = pd.read_csv(out / "metrics.csv")
     rows = m[m["observer"].isin(names) & (m["state"] == "beta_rad")]
     assert set(rows["observer"]) == set(names)
-    assert np.all(np.isfinite(rows["rmse"]))
+    assert np.all(np.isfinite(rows["rmse"])), rows[["observer", "status", "rmse"]].to_string()
     ok = rows.set_index("observer")
     assert ok.loc["flpv_interval_bessafa", "status"] in ("ok", "saturated")
     assert 0.0 <= ok.loc["flpv_interval_bessafa", "coverage"] <= 1.0
