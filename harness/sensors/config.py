@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from roadtruth.harness.errors import SensorConfigError
+from roadtruth.harness.files.parsed_files import ParsedFiles
 from roadtruth.harness.files.strict_yaml import Fields, load_mapping
 from roadtruth.harness.sensors.catalog import SENSORS
 from roadtruth.harness.sensors.faults import FAULT_KINDS, FaultSpec, parse_fault_list, parse_faults
@@ -119,24 +120,13 @@ def _preset_file(preset: str | Path) -> Path:
     return candidate
 
 
-#: Parsed preset files by (path, modification time, size): a stress sweep builds the same suite for
-#: every case, and parsing the YAML was a sixth of a short case's time. An edited file is read again.
-_PARSED: dict[tuple[str, int, int], dict[str, Any]] = {}
+#: Parsed preset files (a sweep builds the same suite for every case; an edited file is read again).
+_PARSED = ParsedFiles()
 
 
 def _preset_mapping(path: Path) -> dict[str, Any]:
     """The top-level mapping of a preset file (a private copy: callers may change it)."""
-    try:
-        st = path.stat()
-        key: tuple[str, int, int] | None = (str(path.resolve()), st.st_mtime_ns, st.st_size)
-    except OSError:
-        key = None  # load_mapping says what is wrong with the path
-    hit = _PARSED.get(key) if key else None
-    if hit is None:
-        hit = load_mapping(path, SensorConfigError)
-        if key:
-            _PARSED[key] = hit
-    return copy.deepcopy(hit)
+    return copy.deepcopy(_PARSED.get(path, lambda: load_mapping(path, SensorConfigError)))
 
 
 def _read_preset(preset: str | Path, depth: int = 0) -> tuple[dict[str, Any], str, str, str]:

@@ -37,6 +37,7 @@ import mujoco
 import numpy as np
 
 from roadtruth.harness.errors import ScenarioError
+from roadtruth.harness.files.parsed_files import ParsedFiles
 from roadtruth.harness.signals import WHEELS
 from roadtruth.harness.truth.car_model import CORNERS, FRONT_OVERHANG_M, build_mjcf, corner_geometry
 from roadtruth.harness.truth.driver import (
@@ -413,9 +414,9 @@ def _step_functions() -> tuple[Any, Any]:
     return _STEP_FUNCTIONS
 
 
-#: Parsed vehicle sets by (resolved file, modification time [ns], size [bytes]): a suite or a sweep
-#: simulates the same set many times, and parsing its YAML costs more than building the model.
-_VEHICLES: dict[tuple[str, int, int], VehicleParams] = {}
+#: Parsed vehicle sets (an edited file is read again): a suite or a sweep simulates the same set many
+#: times, and parsing its YAML costs more than building the model.
+_VEHICLES = ParsedFiles()
 
 
 def _resolve_vehicle(scenario: Any, vehicle: VehicleParams | str | None) -> VehicleParams:
@@ -425,18 +426,7 @@ def _resolve_vehicle(scenario: Any, vehicle: VehicleParams | str | None) -> Vehi
     path = Path(ref)
     if path.suffix.lower() not in (".yaml", ".yml"):
         path = vehicles_dir() / f"{ref}.yaml"  # a shipped set's name (roadtruth.harness.truth.vehicle.load_vehicle)
-    try:
-        stat = path.stat()
-    except OSError:
-        return load_vehicle(ref)  # not a file: load_vehicle says why
-    key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size)
-    hit = _VEHICLES.get(key)
-    if hit is None:
-        hit = load_vehicle(ref)
-        if len(_VEHICLES) > 64:
-            _VEHICLES.clear()
-        _VEHICLES[key] = hit
-    return hit
+    return _VEHICLES.get(path, lambda: load_vehicle(ref))  # not a file: load_vehicle says why
 
 
 @functools.lru_cache(maxsize=32)
