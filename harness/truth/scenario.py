@@ -10,15 +10,19 @@ value; the ``driver:`` and ``lead:`` blocks are checked by ``roadtruth.harness.t
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import functools
 import math
+import os
 from dataclasses import dataclass
 from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
 from roadtruth.harness.errors import ScenarioError
-from roadtruth.harness.files.strict_yaml import Fields, load_mapping, short_repr
+from roadtruth.harness.files.parsed_files import ParsedFiles
+from roadtruth.harness.files.strict_yaml import Fields, short_repr
 from roadtruth.harness.truth.driver import DriverSpec, LeadSpec, parse_driver, parse_lead
 from roadtruth.harness.truth.friction_map import (
     FrictionMap,
@@ -28,6 +32,7 @@ from roadtruth.harness.truth.friction_map import (
 )
 from roadtruth.harness.truth.road import SEGMENT_KINDS, Road, Segment, build_road
 from roadtruth.harness.truth.road_profile import RoadProfile
+from roadtruth.harness.truth.scenario_index import scenario_files, scenario_header, scenario_mapping
 from roadtruth.harness.truth.vehicle import available_vehicles
 
 #: Below this speed the Magic Formula slip definitions (divided by |vx|) are not meaningful [m/s].
@@ -102,7 +107,9 @@ class Scenario:
 
 # ---- the library ---------------------------------------------------------------------------------
 
+@functools.cache
 def scenarios_dir() -> Path:
+    """The folder of the shipped scenarios (where the package is installed: fixed for the process)."""
     return Path(str(files("roadtruth.harness") / "scenarios"))
 
 
@@ -111,9 +118,28 @@ def available_scenarios() -> list[str]:
     return sorted(p.stem for p in scenarios_dir().glob("*.yaml"))
 
 
+#: Built scenarios, one per file (and spelling of its path): a suite validates, prepares and runs
+#: each scenario several times and a sweep runs one scenario for every case. A ``Scenario`` is
+#: frozen and its arrays read-only; its one mutable field, ``sensor_overrides``, is copied for each
+#: caller (:func:`load_scenario`), so no caller can change what another one gets.
+_SCENARIOS = ParsedFiles()
+
+
+def _working_folder() -> str:
+    """The working folder (a relative vehicle path in a scenario is looked up in it first)."""
+    try:
+        return os.getcwd()
+    except OSError:  # the folder was deleted under us: such a path cannot be found there anyway
+        return ""
+
+
 def load_scenario(name_or_path: str | Path) -> Scenario:
     """Load a shipped scenario by name (``"step_steer"``) or any scenario YAML by path (absolute or
-    relative to the working folder; the run folder's sub-folder is named from the scenario's name)."""
+    relative to the working folder; the run folder's sub-folder is named from the scenario's name).
+
+    The file is parsed and validated once while it is unchanged (same path, modification time
+    and size); every call returns a scenario of its own (``sensor_overrides`` is a fresh copy).
+    """
     p = Path(name_or_path)
     if p.suffix.lower() not in (".yaml", ".yml"):
         # A name is one of the shipped library, never a path into or out of it ("../x").
@@ -121,7 +147,11 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         if str(name_or_path) not in available_scenarios() or not p.is_file():
             raise ScenarioError(f"unknown scenario {str(name_or_path)!r} "
                                 f"(available: {', '.join(available_scenarios())})")
-    return parse_scenario(load_mapping(p, ScenarioError), str(p))
+    # The result depends on the path as spelled (Scenario.path, the folder of a relative vehicle
+    # path) and on the working folder (where a relative vehicle path is looked up first).
+    shared = _SCENARIOS.get(p, lambda: parse_scenario(scenario_mapping(p), str(p)),
+                            variant=(str(p), _working_folder()))
+    return dataclasses.replace(shared, sensor_overrides=copy.deepcopy(shared.sensor_overrides))
 
 
 def scenario_summaries() -> list[dict[str, Any]]:
@@ -136,13 +166,17 @@ def scenario_summaries() -> list[dict[str, Any]]:
 
 
 def suite(name: str) -> list[str]:
-    """Scenario names carrying the tag ``name`` (``"all"`` = every shipped scenario)."""
-    loaded = [load_scenario(n) for n in available_scenarios()]
+    """Scenario names carrying the tag ``name`` (``"all"`` = every shipped scenario).
+
+    Only the files' headers are read (``scenario_index.scenario_header``: the same checks of the
+    same fields as a full load); the chosen scenarios are built when they are loaded.
+    """
+    headers = [scenario_header(p) for p in scenario_files()]
     if name == "all":
-        return [s.name for s in loaded]
-    chosen = [s.name for s in loaded if name in s.tags]
+        return [h["name"] for h in headers]
+    chosen = [h["name"] for h in headers if name in h["tags"]]
     if not chosen:
-        known = sorted({t for s in loaded for t in s.tags} | {"all"})
+        known = sorted({t for h in headers for t in h["tags"]} | {"all"})
         raise ScenarioError(f"unknown suite {name!r} (known: {', '.join(known)})", field="--suite")
     return chosen
 

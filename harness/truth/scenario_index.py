@@ -18,6 +18,11 @@ from pathlib import Path
 from typing import Any
 
 from roadtruth.harness.errors import ScenarioError
+from roadtruth.harness.files.parsed_files import ParsedFiles
+
+#: Parsed scenario files: a suite reads every header to pick its scenarios by tag, then loads the
+#: chosen ones; a sweep loads the same file for every case. Entries are shared: read, never change them.
+_MAPPINGS = ParsedFiles()
 
 
 def scenario_files() -> list[Path]:
@@ -44,17 +49,25 @@ def _vehicle(value: str, source: str, base: Path) -> str:
     return value
 
 
+def scenario_mapping(path: Path) -> dict[str, Any]:
+    """The top-level YAML mapping of a scenario file, parsed once while the file is unchanged
+    (``roadtruth.harness.files.strict_yaml.load_mapping``; raises ``ScenarioError``).
+
+    The same dict is handed to every caller: parsers only read it (``Fields`` copies what it
+    checks), and ``load_scenario`` gives each caller its own copy of anything a scenario keeps from it.
+    """
+    from roadtruth.harness.files.strict_yaml import load_mapping  # YAML only when not remembered
+
+    return _MAPPINGS.get(path, lambda: load_mapping(path, ScenarioError))
+
+
 def scenario_header(path: Path) -> dict[str, Any]:
     """One listing row of a scenario file: name, description, standard, tags, vehicle,
     duration_s [s], initial_speed_mps [m/s]. Raises ``ScenarioError`` for a bad header field."""
-    from roadtruth.harness.files.strict_yaml import (  # YAML only when not remembered
-        Fields,
-        load_mapping,
-        short_repr,
-    )
+    from roadtruth.harness.files.strict_yaml import Fields, short_repr
 
     source = str(path)
-    f = Fields(load_mapping(path, ScenarioError), source=source, error=ScenarioError)
+    f = Fields(scenario_mapping(path), source=source, error=ScenarioError)
     name = f.string("name")
     if name != path.stem:
         raise f.fail("name", f"must equal the file name {path.stem!r} (got {short_repr(name)})")
