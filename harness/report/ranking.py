@@ -15,8 +15,9 @@ Rules (each one a claim the page makes):
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import pandas as pd
 
@@ -64,36 +65,48 @@ class MeanRank:
         return f"{self.mean:.1f} over {self.n_ranked} of {self.n_scenarios} scenario{'s' if self.n_scenarios != 1 else ''}"
 
 
-def rank_state(metrics: pd.DataFrame, state: str, column: str, sense: str,
+def rank_state(metrics: pd.DataFrame | Sequence[Mapping[str, Any]], state: str, column: str, sense: str,
                scenarios: Sequence[str], observers: Sequence[str] | None = None,
                scale: float = 1.0) -> dict[str, MeanRank]:
     """Per-scenario competition ranks of every observer on ``state`` by ``column`` and their means.
 
-    ``metrics`` has the ``metrics.csv`` columns (``scenario, observer, state, status, <column>``).
-    ``observers`` fixes the rows (default: every observer with a row for this state). ``scale``
-    converts the SI value to the unit the table shows it in (e.g. rad -> deg), so that ties are
-    judged on the digits the reader sees.
+    ``metrics`` has the ``metrics.csv`` columns (``scenario, observer, state, status, <column>``),
+    as a frame or as its rows (dicts, e.g. ``RunData.records``). ``observers`` fixes the rows
+    (default: every observer with a row for this state). ``scale`` converts the SI value to the unit
+    the table shows it in (e.g. rad -> deg), so that ties are judged on the digits the reader sees.
     """
-    sm = metrics[metrics["state"].astype(str) == state]
+    if isinstance(metrics, pd.DataFrame):
+        metrics = metrics.to_dict("records")
+    sm = [r for r in metrics if str(r.get("state")) == state]
     if observers is None:
-        observers = list(dict.fromkeys(sm["observer"].astype(str)))
+        observers = list(dict.fromkeys(str(r.get("observer")) for r in sm))
     per_obs: dict[str, dict[str, int]] = {o: {} for o in observers}
-    if column in sm.columns:
-        values = pd.to_numeric(sm[column], errors="coerce").to_numpy(float)
-        by_scenario: dict[str, dict[str, float]] = {}
-        # Lists, not the columns: iterating a pandas string column boxes every cell (slow).
-        for scen, obs, status, v in zip(sm["scenario"].astype(str).tolist(), sm["observer"].astype(str).tolist(),
-                                        sm["status"].astype(str).tolist(), values.tolist(), strict=True):
-            if obs in per_obs and status_kind(status) == OK and math.isfinite(v):
-                by_scenario.setdefault(scen, {})[obs] = badness(v * scale, sense)
-        for scen in scenarios:
-            for obs, rank in competition_ranks(by_scenario.get(scen, {})).items():
-                per_obs[obs][scen] = rank
+    by_scenario: dict[str, dict[str, float]] = {}
+    for r in sm:
+        obs = str(r.get("observer"))
+        if obs not in per_obs or column not in r or status_kind(str(r.get("status"))) != OK:
+            continue
+        v = number(r[column])
+        if math.isfinite(v):
+            by_scenario.setdefault(str(r.get("scenario")), {})[obs] = badness(v * scale, sense)
+    for scen in scenarios:
+        for obs, rank in competition_ranks(by_scenario.get(scen, {})).items():
+            per_obs[obs][scen] = rank
     out = {}
     for obs, ranks in per_obs.items():
         mean = sum(ranks.values()) / len(ranks) if ranks else None
         out[obs] = MeanRank(observer=obs, mean=mean, n_ranked=len(ranks), n_scenarios=len(scenarios), ranks=ranks)
     return out
+
+
+def number(v: Any) -> float:
+    """A cell as a float, NaN when it holds none (what ``pd.to_numeric(errors="coerce")`` gives)."""
+    if v is None:
+        return math.nan
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return math.nan
 
 
 def leaders(ranks: dict[str, MeanRank]) -> list[MeanRank]:

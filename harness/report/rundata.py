@@ -473,6 +473,12 @@ class RunData:
         return {}
 
     @cached_property
+    def records(self) -> list[dict[str, Any]]:
+        """The rows of ``metrics`` as dicts of plain Python values, in file order (what the tables
+        iterate: a pandas filter per state, scenario or cell cost more than the rest of the page)."""
+        return self.metrics.to_dict("records")
+
+    @cached_property
     def scenario_names(self) -> list[str]:
         listed = [s["name"] for s in self.run.get("scenarios", []) if isinstance(s, dict) and "name" in s]
         return list(dict.fromkeys([*listed, *self.metrics["scenario"].astype(str).unique().tolist()]))

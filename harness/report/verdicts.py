@@ -17,6 +17,7 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass
+from functools import lru_cache
 
 OK, NOT_APPLICABLE, FAILED, ABSENT = "ok", "n/a", "failed", "absent"
 
@@ -30,7 +31,14 @@ _SENSOR_OF_SIGNAL = {
 
 def status_kind(status: str) -> str:
     """``"ok"``, ``"n/a"`` (skipped), ``"failed"`` or ``"absent"`` (no row at all) for a status."""
-    s = str(status).strip()
+    if type(status) is str:  # a run has a few distinct statuses and the page asks tens of thousands of times
+        return _kind_of_text(status)
+    return _kind_of_text(str(status))
+
+
+@lru_cache(maxsize=4096)
+def _kind_of_text(status: str) -> str:
+    s = status.strip()
     if s == "" or s.startswith("ok"):
         return OK
     if s.startswith("skipped"):

@@ -80,32 +80,29 @@ def state_ranks(run: RunData, state: str, column: str = "rmse",
     return run.memo[key]
 
 
-def state_rows(run: RunData, state: str) -> pd.DataFrame:
-    """The metrics rows of one state, plus the run-level rows (empty state: the observer errored
-    before giving any estimate) of observers that declare this state in run.json, so that a
-    crashed observer shows as failed in the table of each state it estimates instead of vanishing."""
+def state_rows(run: RunData, state: str) -> list[dict[str, Any]]:
+    """The metrics rows of one state (as ``RunData.records``), plus the run-level rows (empty state:
+    the observer errored before giving any estimate) of observers that declare this state in
+    run.json, so that a crashed observer shows as failed in the table of each state it estimates
+    instead of vanishing. Rows of the state first, in file order, then those run-level ones."""
     key = ("state_rows", state)
     if key in run.memo:
         return run.memo[key]
-    m = run.metrics
     declared = {str(o.get("name")) for o in run.run.get("observers", [])
                 if isinstance(o, dict) and state in (o.get("states") or [])}
-    extra = m[(m["state"] == "") & m["observer"].astype(str).isin(declared)]
-    rows = m[m["state"] == state]
-    # Lists, not the columns: iterating a pandas string column boxes every cell (slow).
-    have = set(zip(rows["observer"].astype(str).tolist(), rows["scenario"].astype(str).tolist(), strict=True))
-    extra = extra[[(str(o), str(sc)) not in have
-                   for o, sc in zip(extra["observer"].tolist(), extra["scenario"].tolist(), strict=True)]]
-    run.memo[key] = pd.concat([rows, extra.assign(state=state)], ignore_index=True)
+    rows = [r for r in run.records if r["state"] == state]
+    have = {(str(r["observer"]), str(r["scenario"])) for r in rows}
+    extra = [{**r, "state": state} for r in run.records
+             if r["state"] == "" and str(r["observer"]) in declared
+             and (str(r["observer"]), str(r["scenario"])) not in have]
+    run.memo[key] = rows + extra
     return run.memo[key]
 
 
 def table_scenarios(run: RunData, state: str) -> list[str]:
     """Scenario columns of a state's table: those where some observer ran (ok or failed). A column
     where every observer was not applicable (no radar, say) would only say "n/a" in each row."""
-    sm = state_rows(run, state)
-    kinds = sm.assign(kind=sm["status"].astype(str).map(status_kind))
-    used = set(kinds.loc[kinds["kind"] != NOT_APPLICABLE, "scenario"].astype(str))
+    used = {str(r["scenario"]) for r in state_rows(run, state) if status_kind(str(r["status"])) != NOT_APPLICABLE}
     return [s for s in run.scenario_names if s in used]
 
 
@@ -120,11 +117,10 @@ class LeaderboardSection(Section):
             scale, unit = display_unit(state)
             scenarios = table_scenarios(run, state)
             sm = state_rows(run, state)
-            observers = list(dict.fromkeys(sm["observer"].astype(str)))
+            observers = list(dict.fromkeys(str(r["observer"]) for r in sm))
             ranks = {col: state_ranks(run, state, col, scenarios) for col, _, _, _ in SWITCHABLE}
             # One pass over the rows (first row per observer × scenario), not a filter per cell.
-            by_cell = {(str(r["observer"]), str(r["scenario"])): r
-                       for r in reversed(sm.to_dict("records"))}
+            by_cell = {(str(r["observer"]), str(r["scenario"])): r for r in reversed(sm)}
             rows = []
             for obs in observers:
                 cells = []

@@ -23,12 +23,13 @@ class ObserversSection(Section):
     anchor = "observers"
 
     def context(self, run: RunData, page: Any) -> dict[str, Any]:
-        m = run.metrics
+        states_of: dict[str, set[str]] = {}  # observer -> the states of its metrics rows
+        for r in run.records:
+            states_of.setdefault(str(r["observer"]), set()).add(r["state"])
         info = {o.get("name"): o for o in run.run.get("observers", []) if isinstance(o, dict)}
         runs = run.run.get("observer_runs", {})
         rows = []
         for obs in run.observer_names:
-            om = m[m["observer"] == obs]
             statuses = []
             reasons = []
             for scen in run.scenario_names:
@@ -43,7 +44,7 @@ class ObserversSection(Section):
             meta = info.get(obs, {})
             rows.append({
                 "name": obs, "colour": page.colours.get(obs, "#444"), "swatch": page.swatch(obs),
-                "citation": meta.get("citation", ""), "states": meta.get("states") or sorted(set(om["state"])),
+                "citation": meta.get("citation", ""), "states": meta.get("states") or sorted(states_of.get(obs, ())),
                 "design": page.designs.get(obs, "not_applicable"),
                 "design_reason": "; ".join(dict.fromkeys(reasons)),
                 "statuses": statuses,

@@ -11,6 +11,7 @@ import pandas as pd
 
 from roadtruth.harness.report.figures import TRUTH_EVENTS, state_figure, trajectory_figure
 from roadtruth.harness.report.plot_data import PIXEL_COLUMNS, STEPS_PER_SPAN
+from roadtruth.harness.report.ranking import number
 from roadtruth.harness.report.rundata import RunData
 from roadtruth.harness.report.sections.base import Section
 
@@ -43,14 +44,16 @@ def truth_summary(entry: dict[str, Any], events: list[dict[str, Any]]) -> dict[s
     return None
 
 
-def scored_until(metrics: pd.DataFrame) -> float | None:
+def scored_until(metrics: pd.DataFrame | list[dict[str, Any]]) -> float | None:
     """Where scoring of a scenario stopped (``scored_until_s`` column, earliest finite value), or
-    None when the column is absent or every row was scored to the end."""
-    if "scored_until_s" not in metrics.columns:
-        return None
-    v = pd.to_numeric(metrics["scored_until_s"], errors="coerce").dropna()
-    v = v[v.map(math.isfinite)]
-    return float(v.min()) if len(v) else None
+    None when the column is absent or every row was scored to the end. ``metrics``: the scenario's
+    metrics rows, as a frame or as dicts (``RunData.records``)."""
+    if isinstance(metrics, pd.DataFrame):
+        if "scored_until_s" not in metrics.columns:
+            return None
+        metrics = metrics.to_dict("records")
+    v = [x for x in (number(r.get("scored_until_s")) for r in metrics) if math.isfinite(x)]
+    return min(v) if v else None
 
 
 class ScenariosSection(Section):
@@ -69,10 +72,10 @@ class ScenariosSection(Section):
             if not truth.empty and {"x_m", "y_m"} <= set(truth.columns):
                 figures.append({"id": f"fig-{slug(name)}-path", "spec": trajectory_figure(truth, info, events),
                                 "wide": False})
-            sm = run.metrics[run.metrics["scenario"] == name]
-            ok = sm["status"].astype(str).str.startswith("ok") & sm["rmse"].notna()
-            states = [s for s in run.scored_states if s in set(sm.loc[ok, "state"])]
-            until = scored_until(sm)
+            rows = [r for r in run.records if r["scenario"] == name]
+            scored = {r["state"] for r in rows if str(r["status"]).startswith("ok") and not pd.isna(r["rmse"])}
+            states = [s for s in run.scored_states if s in scored]
+            until = scored_until(rows)
             t_end = float(truth["t_s"].iloc[-1]) if "t_s" in truth.columns and len(truth) else None
             if until is not None and t_end is not None and until >= t_end - 1e-9:
                 until = None

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import pandas as pd
+
 from roadtruth.harness.report.figures import display_unit, state_label
 from roadtruth.harness.report.ranking import leaders as best_of
 from roadtruth.harness.report.rundata import RunData
@@ -81,7 +83,6 @@ def leaders(run: RunData, page: Any) -> list[dict[str, Any]]:
     """Per state, the observer(s) with the best mean RMSE rank among those scored in the most
     scenarios — from ``state_ranks``, the same function the leaderboard's rank column uses."""
     out = []
-    m = run.metrics
     for state in run.scored_states:
         ranks = state_ranks(run, state, "rmse")
         best = best_of(ranks)
@@ -89,8 +90,9 @@ def leaders(run: RunData, page: Any) -> list[dict[str, Any]]:
             continue
         scale, unit = display_unit(state)
         names = [b.observer for b in best]
-        rows = m[(m["state"] == state) & m["observer"].isin(names) & (m["status"].map(status_kind) == "ok")]
-        rmse = rows["rmse"].dropna()
+        chosen = set(names)
+        rmse = pd.Series([r["rmse"] for r in run.records if r["state"] == state and r["observer"] in chosen
+                          and status_kind(r["status"]) == "ok"], dtype=float).dropna()
         out.append({"state": state, "label": state_label(state), "observers": names,
                     "swatches": [page.swatch(n) for n in names], "mean_rank": best[0].mean,
                     "n_ranked": best[0].n_ranked, "n_scenarios": best[0].n_scenarios,
