@@ -163,3 +163,43 @@ def test_a_repeated_load_gives_equal_scenarios(step_steer_copy: Path) -> None:
               "outages", "events", "lane_gaps", "tags", "sensors", "sensor_overrides", "path"):
         assert getattr(a, f) == getattr(b, f)
     np.testing.assert_array_equal(a.road.samples, b.road.samples)
+
+
+# ---- the YAML reader: libyaml's parser under the module's own rules --------------------------------
+
+def _shipped_yaml_files() -> list[Path]:
+    root = Path(strict_yaml.__file__).resolve().parents[1]  # the harness package folder
+    return sorted(root.rglob("*.yaml"))
+
+
+def test_libyaml_and_pure_python_parsing_give_identical_values_for_every_shipped_file() -> None:
+    files = _shipped_yaml_files()
+    assert len(files) >= 20
+    for f in files:
+        text = f.read_text(encoding="utf-8")
+        fast, pure = strict_yaml.parse_yaml(text), strict_yaml.parse_yaml(text, pure_python=True)
+        assert repr(fast) == repr(pure), f  # repr: also the types (1 vs 1.0, '1' vs 1)
+
+
+@pytest.mark.parametrize("pure_python", [False, True])
+def test_the_module_rules_hold_with_either_parser(pure_python: bool) -> None:
+    parse = lambda text: strict_yaml.parse_yaml(text, pure_python=pure_python)  # noqa: E731
+    assert parse("a: 1e-3\nd: 0123\ne: yes\ng: 2024-05-02\nm: {<<: {x: 1}, y: 2}\n") == {
+        "a": 1e-3, "d": 123, "e": "yes", "g": "2024-05-02", "m": {"x": 1, "y": 2}}
+    nested = "".join("  " * i + f"k{i}:\n" for i in range(80)) + "  " * 80 + "v: 1\n"
+    for text, message in ((nested, "nested deeper than 64 levels"), ("a: " + "[" * 70 + "]" * 70, "nested deeper"),
+                          ("a: " + "[" * 5000 + "]" * 5000, "nested deeper than 64 levels"), ("a: 1\nb: 2\na: 3\n", "duplicate key 'a'"),
+                          ("1: a\n", "mapping key 1 is not a string"), ("a: &a [*a]\n", "infinite expansion")):
+        with pytest.raises(strict_yaml.yaml.YAMLError, match=message) as err:
+            parse(text)
+        assert err.value.problem_mark is not None
+
+
+def test_a_malformed_file_is_one_line_with_its_line_number(tmp_path: Path) -> None:
+    from roadtruth.harness.errors import ScenarioError
+
+    p = tmp_path / "broken.yaml"
+    p.write_text("name: broken\nvehicle: sedan\nduration_s: [1,\n")
+    with pytest.raises(ScenarioError, match=r"broken\.yaml: malformed YAML at line 4: ") as err:
+        strict_yaml.load_mapping(p, ScenarioError)
+    assert "\n" not in str(err.value)

@@ -58,14 +58,18 @@ class _Refused(yaml.YAMLError):
         self.problem_mark = mark
 
 
-class _BoundedLoader(yaml.SafeLoader):
-    """PyYAML's safe loader with the YAML 1.2 core schema, a depth bound and string-only keys."""
+class _BoundedRules(yaml.composer.Composer, yaml.constructor.SafeConstructor, yaml.resolver.Resolver):
+    """What this module adds to PyYAML's safe loading: the YAML 1.2 core schema, a depth bound and
+    string-only, unique keys. Composition and construction are Python; the events come from a
+    parser mixed in after it (libyaml's when PyYAML was built with it, else PyYAML's own)."""
 
     # A fresh resolver table (not SafeLoader's YAML 1.1 one), filled below.
     yaml_implicit_resolvers: dict[str | None, list[tuple[str, re.Pattern[str]]]] = {}
 
-    def __init__(self, stream: str) -> None:
-        super().__init__(stream)
+    def _init_rules(self) -> None:
+        yaml.composer.Composer.__init__(self)
+        yaml.constructor.SafeConstructor.__init__(self)
+        yaml.resolver.Resolver.__init__(self)
         self._depth = 0
 
     def compose_node(self, parent: Any, index: Any) -> Any:
@@ -104,20 +108,45 @@ class _BoundedLoader(yaml.SafeLoader):
         return sign * int(digits, 10)  # YAML 1.2: a leading 0 is not octal
 
 
+class _BoundedLoader(yaml.reader.Reader, yaml.scanner.Scanner, yaml.parser.Parser, _BoundedRules):
+    """The rules over PyYAML's pure-Python reader, scanner and parser."""
+
+    def __init__(self, stream: str) -> None:
+        yaml.reader.Reader.__init__(self, stream)
+        yaml.scanner.Scanner.__init__(self)
+        yaml.parser.Parser.__init__(self)
+        self._init_rules()
+
+
+try:
+    from yaml._yaml import CParser as _CParser
+except ImportError:  # PyYAML built without libyaml: the pure-Python parser alone
+    _FastBoundedLoader: type[_BoundedRules] = _BoundedLoader
+else:
+    class _FastBoundedLoader(_BoundedRules, _CParser):  # type: ignore[no-redef, misc]
+        """The rules over libyaml's scanner and parser (C; about five times faster than PyYAML's
+        Python one, which is most of a file's cost). The Python composer comes first in the MRO, so
+        the depth bound applies to every node (libyaml's C composer is never used)."""
+
+        def __init__(self, stream: str) -> None:
+            _CParser.__init__(self, stream)
+            self._init_rules()
+
+
 # YAML 1.2 core schema (https://yaml.org/spec/1.2.2/#1032-tag-resolution), plus `<<` merge keys.
-_BoundedLoader.add_implicit_resolver(
+_BoundedRules.add_implicit_resolver(
     "tag:yaml.org,2002:bool", re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"), list("tTfF"))
-_BoundedLoader.add_implicit_resolver(
+_BoundedRules.add_implicit_resolver(
     "tag:yaml.org,2002:int", re.compile(r"^(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)$"), list("-+0123456789"))
-_BoundedLoader.add_implicit_resolver(
+_BoundedRules.add_implicit_resolver(
     "tag:yaml.org,2002:float",
     re.compile(r"^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
                r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$"),
     list("-+0123456789."))
-_BoundedLoader.add_implicit_resolver(
+_BoundedRules.add_implicit_resolver(
     "tag:yaml.org,2002:null", re.compile(r"^(?:~|null|Null|NULL|)$"), ["~", "n", "N", ""])
-_BoundedLoader.add_implicit_resolver("tag:yaml.org,2002:merge", re.compile(r"^(?:<<)$"), ["<"])
-_BoundedLoader.add_constructor("tag:yaml.org,2002:int", _BoundedLoader.construct_yaml_int)
+_BoundedRules.add_implicit_resolver("tag:yaml.org,2002:merge", re.compile(r"^(?:<<)$"), ["<"])
+_BoundedRules.add_constructor("tag:yaml.org,2002:int", _BoundedRules.construct_yaml_int)
 
 
 def _expanded_size(root: yaml.Node) -> int:
@@ -152,15 +181,25 @@ def _expanded_size(root: yaml.Node) -> int:
     return size(root)
 
 
-def parse_yaml(text: str) -> Any:
-    """Parse YAML text with the bounds and schema of this module (raises ``yaml.YAMLError``)."""
-    loader = _BoundedLoader(text)
+def parse_yaml(text: str, *, pure_python: bool = False) -> Any:
+    """Parse YAML text with the bounds and schema of this module (raises ``yaml.YAMLError``).
+
+    libyaml scans and parses when PyYAML has it; ``pure_python`` forces PyYAML's own parser
+    (the two give the same values; tests compare them).
+    """
+    loader = (_BoundedLoader if pure_python else _FastBoundedLoader)(text)
     try:
         node = loader.get_single_node()
         if node is None:
             return None
         _expanded_size(node)
         return loader.construct_document(node)
+    except yaml.MarkedYAMLError as exc:
+        # libyaml's scanner looks ahead through flow collections and stops at its own depth limit
+        # (1000 levels) before the composer reaches this module's: the same refusal, in our words.
+        if "maximum nesting depth" in str(exc.problem):
+            raise _Refused(f"nested deeper than {MAX_YAML_DEPTH} levels", exc.problem_mark) from None
+        raise
     finally:
         loader.dispose()
 
@@ -238,6 +277,12 @@ def trace_fields() -> Iterator[FieldTrace]:
         yield trace
     finally:
         _trace.reset(token)
+
+
+def tracing() -> bool:
+    """True inside :func:`trace_fields`: a parser must then read its file again rather than hand out
+    what it remembered (the trace is made of the ``Fields`` calls of the reading)."""
+    return _trace.get() is not None
 
 
 class Fields:

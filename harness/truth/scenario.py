@@ -22,7 +22,7 @@ from typing import Any
 
 from roadtruth.harness.errors import ScenarioError
 from roadtruth.harness.files.parsed_files import ParsedFiles
-from roadtruth.harness.files.strict_yaml import Fields, short_repr
+from roadtruth.harness.files.strict_yaml import Fields, short_repr, tracing
 from roadtruth.harness.truth.driver import DriverSpec, LeadSpec, parse_driver, parse_lead
 from roadtruth.harness.truth.friction_map import (
     FrictionMap,
@@ -147,6 +147,8 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         if str(name_or_path) not in available_scenarios() or not p.is_file():
             raise ScenarioError(f"unknown scenario {str(name_or_path)!r} "
                                 f"(available: {', '.join(available_scenarios())})")
+    if tracing():  # the published schemas are traced from a reading: read, do not remember
+        return parse_scenario(copy.deepcopy(scenario_mapping(p)), str(p))
     # The result depends on the path as spelled (Scenario.path, the folder of a relative vehicle
     # path) and on the working folder (where a relative vehicle path is looked up first).
     shared = _SCENARIOS.get(p, lambda: parse_scenario(scenario_mapping(p), str(p)),
