@@ -12,13 +12,16 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
 from roadtruth.harness.errors import InputError
 from roadtruth.harness.truth.vehicle import VehicleParams
+
+if TYPE_CHECKING:
+    from roadtruth.observers.base import EstimateTrack
 
 ESTIMATE_COLUMNS = ("t_s", "observer", "state", "value", "lo", "hi", "var")
 
@@ -100,7 +103,9 @@ def run_observers(measurements: pd.DataFrame, vehicle: VehicleParams, names: lis
                   options: Mapping[str, Mapping[str, Any]] | None = None,
                   timeout_s: float | None = None,
                   ) -> tuple[pd.DataFrame, dict[str, ObserverRun]]:
-    """Run each observer of ``names`` over ``measurements``.
+    """Run each observer of ``names`` over ``measurements``; the estimates as one long frame.
+
+    The same as :func:`run_observer_tracks` with its tracks joined by :func:`long_estimates`.
 
     Parameters
     ----------
@@ -123,6 +128,33 @@ def run_observers(measurements: pd.DataFrame, vehicle: VehicleParams, names: lis
         without covariance). A diverged observer's estimates are kept (for plots); failed ones are absent.
     runs : dict name -> ObserverRun
     """
+    tracks, runs = run_observer_tracks(measurements, vehicle, names, options=options, timeout_s=timeout_s)
+    return long_estimates(tracks), runs
+
+
+def long_estimates(tracks: Mapping[str, EstimateTrack]) -> pd.DataFrame:
+    """Tracks as the long frame ``t_s, observer, state, value, lo, hi, var`` (observers in order)."""
+    frames = [track.to_frame() for track in tracks.values()]
+    if frames:
+        est = pd.concat(frames, ignore_index=True)
+    else:
+        est = pd.DataFrame({c: pd.Series(dtype=object if c in ("observer", "state") else float)
+                            for c in ESTIMATE_COLUMNS})
+    return est[list(ESTIMATE_COLUMNS)]
+
+
+def run_observer_tracks(measurements: pd.DataFrame, vehicle: VehicleParams, names: list[str], *,
+                        options: Mapping[str, Mapping[str, Any]] | None = None,
+                        timeout_s: float | None = None,
+                        ) -> tuple[dict[str, EstimateTrack], dict[str, ObserverRun]]:
+    """Run each observer of ``names`` over ``measurements``; the estimates as arrays.
+
+    Parameters as :func:`run_observers`. Returns ``tracks``: name -> ``EstimateTrack`` ((n, k)
+    arrays on the frame's times, in the order of ``names``; a diverged observer's track is kept for
+    plots, a failed or skipped one is absent) and ``runs``: name -> ``ObserverRun``. Scoring
+    (``roadtruth.harness.evaluation.scoring.score``) and the wide table writer take the tracks as
+    they are, without the long frame's copies.
+    """
     from roadtruth.harness.evaluation.observer_host import run_isolated
     from roadtruth.observers.registry import observer_class
 
@@ -141,7 +173,7 @@ def run_observers(measurements: pd.DataFrame, vehicle: VehicleParams, names: lis
             cls(vehicle, **dict(options[n]))
     t = measurements["t_s"].to_numpy(dtype=float)
     budget = default_observer_timeout(float(t[-1] - t[0]) if len(t) else 0.0) if timeout_s is None else float(timeout_s)
-    frames: list[pd.DataFrame] = []
+    tracks: dict[str, EstimateTrack] = {}
     runs: dict[str, ObserverRun] = {}
     for name in names:
         cls = observer_class(name)
@@ -162,10 +194,5 @@ def run_observers(measurements: pd.DataFrame, vehicle: VehicleParams, names: lis
         status = "diverged" if why else "ok"
         runs[name] = ObserverRun(status, reply.seconds / max(n, 1) * 1e6, reply.certified, reply.design_reason, n,
                                  reply.design_status, why or "")
-        frames.append(track.to_frame())
-    if frames:
-        est = pd.concat(frames, ignore_index=True)
-    else:
-        est = pd.DataFrame({c: pd.Series(dtype=object if c in ("observer", "state") else float)
-                            for c in ESTIMATE_COLUMNS})
-    return est[list(ESTIMATE_COLUMNS)], runs
+        tracks[name] = track
+    return tracks, runs

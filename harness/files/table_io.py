@@ -335,6 +335,38 @@ def estimates_wide(long: pd.DataFrame, shared: Sequence[str] = ()) -> pd.DataFra
     return pd.concat([base, pd.DataFrame(columns)], axis=1)
 
 
+def _track_columns(track: Any) -> list[tuple[str, np.ndarray]]:
+    """One track's wide columns: ``<observer>.<state>`` and its ``_lo``/``_hi``/``_var`` where the
+    track gives any finite value (the columns :func:`estimates_wide` makes of its long rows)."""
+    out: list[tuple[str, np.ndarray]] = []
+    for j, state in enumerate(track.states):
+        name = f"{track.observer}.{state}"
+        out.append((name, track.x[:, j]))
+        for suffix, arr in zip(BOUND_SUFFIXES, (track.lo, track.hi, track.var), strict=True):
+            if arr is not None and np.isfinite(arr[:, j]).any():
+                out.append((f"{name}_{suffix}", arr[:, j]))
+    return out
+
+
+def tracks_wide(tracks: Any) -> pd.DataFrame:
+    """Observer tracks (name -> ``EstimateTrack``) as the wide estimates table: the same frame as
+    :func:`estimates_wide` of their long rows, built from the arrays (no long frame in between)."""
+    items = list(tracks.values())
+    if not items or all(len(tr.t_s) == 0 or len(tr.states) == 0 for tr in items):
+        return pd.DataFrame({"t_s": pd.Series(dtype=float)})
+    t = np.asarray(items[0].t_s, dtype=float)
+    if not all(len(tr.t_s) == len(t) and np.array_equal(tr.t_s, t) for tr in items):
+        # Observers on different time bases (not what run_observer_tracks gives): the union of times.
+        from roadtruth.harness.evaluation.estimate import long_estimates
+
+        return estimates_wide(long_estimates(tracks))
+    columns: dict[str, np.ndarray] = {"t_s": t}
+    for tr in items:
+        for name, arr in _track_columns(tr):
+            columns[name] = np.asarray(arr, dtype=float)
+    return pd.DataFrame(columns)
+
+
 def state_columns(columns: Sequence[str], states: Sequence[str]) -> list[str]:
     """The columns of a wide estimates table that :func:`estimates_long` with ``states`` reads: the
     shared ones (``t_s``, ``segment``, …) and each observer's value, bound and covariance columns of
@@ -485,6 +517,46 @@ class WideEstimates:
         for col in wide.columns:
             if col != "t_s":
                 self._columns.setdefault(str(col), {})[segment] = wide[col].to_numpy(float)
+
+    def add_times(self, segment: int, t_s: np.ndarray) -> None:
+        """The times of ``segment`` [s] (rows of the table even where no observer gives an estimate)."""
+        t = np.asarray(t_s, dtype=float)
+        known = self._times.setdefault(segment, t)
+        if known is not t and not np.array_equal(known, t):
+            raise ValueError(f"segment {segment} given on two time bases")
+
+    def add_track(self, segment: int, track: Any) -> None:
+        """One observer's ``EstimateTrack`` on ``segment`` (its times are the segment's times)."""
+        self.add_times(segment, track.t_s)
+        for name, arr in _track_columns(track):
+            self._columns.setdefault(name, {})[segment] = np.array(arr, dtype=float)  # own contiguous copy
+
+    def track(self, observer: str, shift_s: dict[int, float] | None = None) -> Any:
+        """One observer's estimates over its segments as an ``EstimateTrack``, ``t_s`` shifted by
+        ``shift_s[segment]`` (the rows :meth:`long` gives, as arrays; for scoring on a stitched axis).
+        None if the observer has no estimates."""
+        from roadtruth.observers.base import EstimateTrack
+
+        shift_s = shift_s or {}
+        spec = {k[1]: v for k, v in estimate_columns(self._columns).items() if k[0] == observer}
+        if not spec:
+            return None
+        segs = [seg for seg in self._times if all(seg in self._columns[c["value"]] for c in spec.values())]
+        t = np.concatenate([self._times[seg] + shift_s.get(seg, 0.0) for seg in segs]) if segs else np.empty(0)
+
+        def stacked(kind: str) -> np.ndarray | None:
+            if not any(kind in c for c in spec.values()):
+                return None
+            cols = []
+            for c in spec.values():
+                per = self._columns[c[kind]] if kind in c else {}
+                cols.append(np.concatenate([per[seg] if seg in per else np.full(len(self._times[seg]), np.nan)
+                                            for seg in segs]) if segs else np.empty(0))
+            return np.column_stack(cols) if cols else None
+
+        x = stacked("value")
+        return EstimateTrack(observer, tuple(spec), t, x if x is not None else np.empty((0, 0)),
+                             stacked("lo"), stacked("hi"), stacked("var"))
 
     @property
     def observers(self) -> list[str]:

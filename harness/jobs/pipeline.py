@@ -23,12 +23,13 @@ import os
 # Offscreen rendering: the GL back-end is chosen when mujoco is first imported.
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+import functools  # noqa: E402
 import math  # noqa: E402
 import shutil  # noqa: E402
 import time  # noqa: E402
 import traceback  # noqa: E402
 import zlib  # noqa: E402
-from collections.abc import Iterable, Sequence  # noqa: E402
+from collections.abc import Iterable, Mapping, Sequence  # noqa: E402
 from concurrent.futures import Future, as_completed  # noqa: E402
 from dataclasses import dataclass, field  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -39,7 +40,7 @@ import pandas as pd  # noqa: E402
 
 from roadtruth.harness.errors import InputError  # noqa: E402
 from roadtruth.harness.files.outdir import atomic_output_dir  # noqa: E402
-from roadtruth.harness.files.table_io import check_format, estimates_wide, write_table  # noqa: E402
+from roadtruth.harness.files.table_io import check_format, tracks_wide, write_table  # noqa: E402
 from roadtruth.harness.jobs.worker_pool import WorkerCrashed, WorkerPool, start_method  # noqa: E402
 from roadtruth.harness.progress import Progress  # noqa: E402
 from roadtruth.harness.report.rundata import (  # noqa: E402
@@ -186,23 +187,29 @@ def run_scenario(task: ScenarioTask) -> ScenarioOutcome:
     return outcome
 
 
-ESTIMATE_COLUMNS = ["t_s", "observer", "state", "value", "lo", "hi", "var"]
-
-
 @dataclass(frozen=True, eq=False)
 class Stages:
     """What the stages of one scenario produced, before anything is written or scored.
 
-    ``runs`` is None when no observer ran: the simulation failed (``truth.ok`` is False) or a later
-    stage crashed (``error`` holds its one-line ``error: …`` status, ``traceback`` the details).
+    ``tracks``: observer -> ``EstimateTrack`` (arrays on the measurement times; what scoring and the
+    wide table take); ``estimates`` gives them as the long frame. ``runs`` is None when no observer
+    ran: the simulation failed (``truth.ok`` is False) or a later stage crashed (``error`` holds its
+    one-line ``error: …`` status, ``traceback`` the details).
     """
 
     truth: Any
     measurements: Any | None
-    estimates: pd.DataFrame
+    tracks: Mapping[str, Any]
     runs: dict[str, Any] | None
     error: str | None = None
     traceback: str | None = None
+
+    @functools.cached_property
+    def estimates(self) -> pd.DataFrame:
+        """The tracks as the long frame ``t_s, observer, state, value, lo, hi, var``."""
+        from roadtruth.harness.evaluation.estimate import long_estimates
+
+        return long_estimates(self.tracks)
 
 
 def evaluate_scenario(sc: Any, vehicle: Any, observers: Sequence[str], sim_seed: int, sensor_seed: int, *,
@@ -218,14 +225,14 @@ def evaluate_scenario(sc: Any, vehicle: Any, observers: Sequence[str], sim_seed:
     ``observer_options``: observer -> {option: value}, checked (``roadtruth.harness.evaluation.observer_options``).
     """
     from roadtruth.harness.evaluation import observer_host
-    from roadtruth.harness.evaluation.estimate import run_observers
+    from roadtruth.harness.evaluation.estimate import run_observer_tracks
     from roadtruth.harness.sensors import emulate
     from roadtruth.harness.truth.simulate import simulate
 
     if observers:
         observer_host.prestart()  # its imports overlap the simulation
     timings = timings if timings is not None else {}
-    empty = pd.DataFrame(columns=ESTIMATE_COLUMNS)
+    empty: dict[str, Any] = {}
     t = time.perf_counter()
     try:
         truth = simulate(sc, seed=sim_seed)
@@ -245,15 +252,15 @@ def evaluate_scenario(sc: Any, vehicle: Any, observers: Sequence[str], sim_seed:
                        outages=sc.outages, lane_gaps=sc.lane_gaps)
         timings["sensors"] = time.perf_counter() - t
         t = time.perf_counter()
-        estimates, runs = run_observers(meas.frame, vehicle, list(observers), timeout_s=observer_timeout_s,
-                                        options=observer_options)
+        tracks, runs = run_observer_tracks(meas.frame, vehicle, list(observers), timeout_s=observer_timeout_s,
+                                           options=observer_options)
         timings["observers"] = time.perf_counter() - t
     except InputError:
         raise
     except Exception as e:  # one broken stage must not stop the suite
         status = f"error: {type(e).__name__}: {e}".splitlines()[0]
         return Stages(truth, meas, empty, None, status, traceback.format_exc())
-    return Stages(truth, meas, estimates, runs)
+    return Stages(truth, meas, tracks, runs)
 
 
 def compute_scenario(task: ScenarioTask, *, failed: str | None = None) -> tuple[ScenarioOutcome, RenderJob | None]:
@@ -289,7 +296,7 @@ def compute_scenario(task: ScenarioTask, *, failed: str | None = None) -> tuple[
                             faults=task.faults, timings=timings, observer_timeout_s=task.observer_timeout_s,
                             observer_options=task.observer_options)
           if failed is None else
-          Stages(FailedTruth(status=failed), None, pd.DataFrame(columns=ESTIMATE_COLUMNS), None, failed))
+          Stages(FailedTruth(status=failed), None, {}, None, failed))
     truth = st.truth
     entry["status"] = st.error if (st.error and truth.ok) else str(truth.status)
     entry["sim_steps"] = len(truth.frame)
@@ -309,7 +316,7 @@ def compute_scenario(task: ScenarioTask, *, failed: str | None = None) -> tuple[
         write_table(st.measurements.frame, folder, "measurements", task.table_format)
     timings["write"] += time.perf_counter() - t
 
-    estimates = st.estimates
+    tracks = st.tracks
     if st.runs is not None:
         runs = st.runs
     elif not truth.ok:
@@ -318,12 +325,12 @@ def compute_scenario(task: ScenarioTask, *, failed: str | None = None) -> tuple[
         runs = {o: SkippedRun(status=f"skipped: {st.error}") for o in task.observers}
 
     t = time.perf_counter()
-    metrics = score(truth.frame, estimates, scenario=label, runs=runs, mass_kg=veh.mass_kg,
+    metrics = score(truth.frame, tracks, scenario=label, runs=runs, mass_kg=veh.mass_kg,
                     scored_until_s=scored_until)
     timings["scoring"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    write_table(estimates_wide(estimates), folder, "estimates", task.table_format)  # one row per time step
+    write_table(tracks_wide(tracks), folder, "estimates", task.table_format)  # one row per time step
     timings["write"] += time.perf_counter() - t
 
     entry["render"] = {"frames": [], "video": None, "reason": "rendering switched off (--no-render)"}
@@ -332,8 +339,8 @@ def compute_scenario(task: ScenarioTask, *, failed: str | None = None) -> tuple[
         best = _best_beta_observer(metrics)
         beta = None
         if best is not None:
-            beta = estimates[(estimates["observer"] == best) & (estimates["state"] == "beta_rad")]
-            beta = beta[["t_s", "value"]].reset_index(drop=True)
+            tr = tracks[best]
+            beta = pd.DataFrame({"t_s": tr.t_s, "value": tr.x[:, list(tr.states).index("beta_rad")]})
         job = RenderJob(source=RenderSource.from_truth(truth), run_dir=task.run_dir, name=label,
                         beta=beta, observer=best)
     entry["timings_s"] = {k: round(v, 4) for k, v in timings.items()}

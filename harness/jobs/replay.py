@@ -294,7 +294,7 @@ def replay(
     Path
         ``out`` (resolved).
     """
-    from roadtruth.harness.evaluation.estimate import run_observers
+    from roadtruth.harness.evaluation.estimate import run_observer_tracks
     from roadtruth.harness.evaluation.scoring import score
     from roadtruth.harness.report import build_report
     from roadtruth.observers.registry import available_observers, observer_class
@@ -330,11 +330,11 @@ def replay(
     offsets = stitched_offsets(rl)
     bar = ProgressBar(len(rl.run_segments) * len(names), None, desc="roadtruth replay") if progress is None else None
 
-    def run_one(m: pd.DataFrame, name: str) -> tuple[pd.DataFrame, dict[str, Any], float]:
+    def run_one(m: pd.DataFrame, name: str) -> tuple[dict[str, Any], dict[str, Any], float]:
         t_obs = time.perf_counter()
         opts = {name: observer_options[name]} if name in observer_options else None
-        est, runs = run_observers(m, veh, [name], timeout_s=observer_timeout_s, options=opts)
-        return est, runs, time.perf_counter() - t_obs
+        tracks, runs = run_observer_tracks(m, veh, [name], timeout_s=observer_timeout_s, options=opts)
+        return tracks, runs, time.perf_counter() - t_obs
 
     # Each observer runs in a host process of its own thread's (harness/evaluation/observer_host.py): n_jobs of
     # them at once. Results are taken in submission order, so files and progress lines do not
@@ -349,13 +349,14 @@ def replay(
             m = rl.measurements[s.index]
             say(f"segment {s.index}: {s.t_start_s:.2f}–{s.t_end_s:.2f} s, {len(m)} steps")
             seg_runs: dict[str, Any] = {}
-            t_seg = m["t_s"].to_numpy(float)
+            wide.add_times(s.index, m["t_s"].to_numpy(float))
             while futures:
-                name, fut = futures.pop(0)  # the future holds the long frame: let both go once stored
-                est, runs, seconds = fut.result()
+                name, fut = futures.pop(0)  # the future holds the track: let both go once stored
+                tracks, runs, seconds = fut.result()
                 del fut
-                wide.add(s.index, t_seg, est)
-                del est
+                for track in tracks.values():
+                    wide.add_track(s.index, track)
+                del tracks
                 seg_runs.update(runs)
                 if bar is not None:
                     bar.item(f"segment {s.index} ({s.t_start_s:.0f}–{s.t_end_s:.0f} s): {name}: "
@@ -401,11 +402,13 @@ def replay(
         # one call); its arrays are written already and freed once it is scored.
         scored = []
         for name, run in runs_all.items():
-            scored.append(score(scoring_truth, wide.long(name, offsets), scenario=rl.name, runs={name: run},
-                                mass_kg=veh.mass_kg))
+            track = wide.track(name, offsets)
+            scored.append(score(scoring_truth, {name: track} if track is not None else {}, scenario=rl.name,
+                                runs={name: run}, mass_kg=veh.mass_kg))
+            del track
             wide.drop(name)
         metrics = pd.concat(scored, ignore_index=True) if scored else score(
-            scoring_truth, wide.long("", offsets), scenario=rl.name, runs={}, mass_kg=veh.mass_kg)
+            scoring_truth, {}, scenario=rl.name, runs={}, mass_kg=veh.mass_kg)
         write_table(segments_frame(rl.segments), sub, "segments", table_format)
         events = [{"t_s": s.t_start_s, "label": f"skipped: {s.reason.split(' (')[0]}"}
                   for s in rl.segments if s.status != RUN]

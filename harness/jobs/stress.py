@@ -206,7 +206,6 @@ def run_case(case: StressCase) -> CaseResult:
     """
     from roadtruth.harness.evaluation.scoring import score
     from roadtruth.harness.jobs.pipeline import (
-        ESTIMATE_COLUMNS,
         FailedTruth,
         SkippedRun,
         evaluate_scenario,
@@ -220,7 +219,7 @@ def run_case(case: StressCase) -> CaseResult:
     mu = math.nan
     mass = None
     truth: Any = FailedTruth(status="error: not simulated")
-    estimates = pd.DataFrame(columns=ESTIMATE_COLUMNS)
+    tracks: dict[str, Any] = {}
     runs: dict[str, Any]
     try:
         sc, mu, veh = _prepared(case)
@@ -228,7 +227,7 @@ def run_case(case: StressCase) -> CaseResult:
         _, sim_seed, sensor_seed = scenario_seeds(sc.seed, case.scenario, case.seed)
         st = evaluate_scenario(sc, veh, case.observers, sim_seed, sensor_seed, faults=faults,
                                observer_timeout_s=case.observer_timeout_s, observer_options=case.observer_options)
-        truth, estimates, tb = st.truth, st.estimates, st.traceback
+        truth, tracks, tb = st.truth, dict(st.tracks), st.traceback
         if st.runs is not None:
             runs = st.runs
         elif st.error:  # a crashed stage marks the whole case (its truth is not trusted either)
@@ -242,7 +241,7 @@ def run_case(case: StressCase) -> CaseResult:
         if truth.ok:
             truth = FailedTruth(status=status)
         runs = {o: SkippedRun(status=status) for o in case.observers}
-    metrics = score(truth.frame, estimates, scenario=case.scenario, runs=runs, mass_kg=mass,
+    metrics = score(truth.frame, tracks, scenario=case.scenario, runs=runs, mass_kg=mass,
                     scored_until_s=scored_until_of(truth))
     head = {"case": case.index, "friction": case.friction, "mu": mu, "faults": case.faults,
             "seed_index": case.seed_index, "seed": case.seed, "truth_status": status_of(truth),
@@ -273,7 +272,7 @@ def build_cases(scenarios: list[str], frictions: list[str], faults: list[str], s
 def _crashed_case(case: StressCase, crash: Exception) -> CaseResult:
     """The rows of a case whose worker process died holding it (``error: worker crashed (signal N)``)."""
     from roadtruth.harness.evaluation.scoring import score
-    from roadtruth.harness.jobs.pipeline import ESTIMATE_COLUMNS, FailedTruth, SkippedRun, prepare_scenario
+    from roadtruth.harness.jobs.pipeline import FailedTruth, SkippedRun, prepare_scenario
 
     status = f"error: {crash}"
     truth = FailedTruth(status=status)
@@ -282,7 +281,7 @@ def _crashed_case(case: StressCase, crash: Exception) -> CaseResult:
                                         None if case.friction == SCENARIO_FRICTION else case.friction))
     except Exception:  # noqa: BLE001 - the label is cosmetic; the inputs were validated up front
         mu = math.nan
-    metrics = score(truth.frame, pd.DataFrame(columns=ESTIMATE_COLUMNS), scenario=case.scenario,
+    metrics = score(truth.frame, {}, scenario=case.scenario,
                     runs={o: SkippedRun(status=status) for o in case.observers}, mass_kg=None)
     head = {"case": case.index, "friction": case.friction, "mu": mu, "faults": case.faults,
             "seed_index": case.seed_index, "seed": case.seed, "truth_status": status,
