@@ -1,16 +1,29 @@
 """Wall time of the commands a user waits for, each in a fresh process, against interpreter baselines.
 
-Run by hand: ``python benchmarks/bench_commands.py [--repeat N]``. Measures ``roadtruth scenarios``,
-``roadtruth observers`` and ``roadtruth simulate step_steer --out <tmp>`` (a 5 s scenario) as fresh
-subprocesses (what a user sees: imports, work, writing, exit), and in the same run the baselines
-``python -c pass`` (interpreter start) and ``python -c "import numpy"``, so that figures measured on
-a loaded machine can be compared as ratios. Prints best and median of N for each, and each command's
-ratio to both baselines (best / best). The load average is printed before and after.
+Run by hand: ``python benchmarks/bench_commands.py [--repeat N] [--no-phases]``. Measures
+``roadtruth scenarios``, ``roadtruth observers`` and ``roadtruth simulate step_steer --out <tmp>``
+(a 5 s scenario) as fresh subprocesses (what a user sees: imports, work, writing, exit), and in the
+same run the baselines ``python -c pass`` (interpreter start) and ``python -c "import numpy"``, so
+that figures measured on a loaded machine can be compared as ratios. Prints best and median of N for
+each, and each command's ratio to both baselines (best / best). The load average is printed before
+and after.
+
+Compiled bytecode: an installed package has its ``.pyc`` files, but a source checkout run with
+``PYTHONDONTWRITEBYTECODE=1`` compiles every module of the package at every start (a few tenths
+of a second for ``simulate``). The children here write and read bytecode in a private temporary
+folder (``PYTHONPYCACHEPREFIX``; the untimed first round fills it), so the figures are those of an
+installed package whatever the environment says, and the working tree gets no ``__pycache__``.
+
+Then (unless ``--no-phases``) where ``simulate``'s time goes: the same steps as
+``roadtruth.harness.jobs.pipeline.simulate_to_dir`` timed one by one in fresh processes (imports of
+numpy, pandas, mujoco and numba, the package's own modules, numba's first dispatch, the simulation,
+writing ``truth.csv`` and ``measurements.csv``), best and median of N per phase.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import subprocess
@@ -18,6 +31,39 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+#: Run in a fresh interpreter: each phase of ``roadtruth simulate step_steer`` [s], printed as JSON.
+PHASES_SCRIPT = r"""
+import json, os, sys, tempfile, time
+from pathlib import Path
+t0 = time.perf_counter(); phases = {}
+def mark(name):
+    global t0
+    t = time.perf_counter(); phases[name] = t - t0; t0 = t
+import numpy; mark("import numpy")
+import pandas; mark("import pandas")
+import mujoco; mark("import mujoco")
+import numba; mark("import numba")
+from roadtruth.harness.jobs import pipeline
+from roadtruth.harness.truth.simulate import simulate
+from roadtruth.harness.sensors import emulate
+mark("import roadtruth (simulate path)")
+sc = pipeline.prepare_scenario("step_steer", None, None)
+veh = sc.vehicle_params(); cfg = pipeline.sensor_config(sc, None, None)
+_, sim_seed, sensor_seed = pipeline.scenario_seeds(sc.seed, sc.name, None)
+mark("scenario, vehicle, sensor preset")
+import numba.np.arraymath; mark("numba target set-up: arraymath (imports scipy.linalg)")
+truth = simulate(sc, seed=sim_seed); first = time.perf_counter() - t0
+truth = simulate(sc, seed=sim_seed); second = time.perf_counter() - t0 - first
+phases["numba target set-up: rest + kernel load from cache"] = max(first - second, 0.0)
+phases["simulate() 5 s (compiled loop + model)"] = second
+t0 = time.perf_counter()
+out = Path(tempfile.mkdtemp(prefix="bench-phases-"))
+pipeline.write_table(truth.at_rate(1000.0), out, "truth", "csv"); mark("write truth.csv (1000 Hz)")
+meas = emulate(truth.frame, veh, cfg, sensor_seed, outages=sc.outages, lane_gaps=sc.lane_gaps); mark("emulate sensors")
+pipeline.write_table(meas.frame, out, "measurements", "csv"); mark("write measurements.csv")
+print(json.dumps(phases)); sys.stdout.flush(); os._exit(0)
+"""
 
 
 def wall_s(argv: list[str], env: dict[str, str]) -> float:
@@ -30,14 +76,32 @@ def wall_s(argv: list[str], env: dict[str, str]) -> float:
     return dt
 
 
+def phases_s(env: dict[str, str]) -> dict[str, float]:
+    """One fresh process's phases of ``simulate step_steer`` [s]."""
+    res = subprocess.run([sys.executable, "-c", PHASES_SCRIPT], capture_output=True, text=True, env=env)
+    if res.returncode != 0:
+        raise SystemExit(f"phase script exited {res.returncode}: {res.stderr.strip()[-500:]}")
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def child_env(pycache: Path) -> dict[str, str]:
+    """The children's environment: bytecode written to and read from ``pycache`` (module doc)."""
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), "PYTHONPYCACHEPREFIX": str(pycache)}
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    return env
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--repeat", type=int, default=5, help="fresh processes per command (default 5)")
+    p.add_argument("--no-phases", action="store_true", help="skip the phase breakdown of simulate")
     a = p.parse_args()
     py = sys.executable
-    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     print(f"cores: {os.cpu_count()}, load average before: {os.getloadavg()[0]:.2f}, repeat {a.repeat}")
+    if os.environ.get("PYTHONDONTWRITEBYTECODE"):
+        print("PYTHONDONTWRITEBYTECODE is set here: the children use a private bytecode folder instead")
     with tempfile.TemporaryDirectory(prefix="bench-commands-") as tmp:
+        env = child_env(Path(tmp) / "pycache")
         cases: dict[str, list[str]] = {
             "python -c pass": [py, "-c", "pass"],
             "python -c 'import numpy'": [py, "-c", "import numpy"],
@@ -45,8 +109,8 @@ def main() -> None:
             "roadtruth observers": [py, "-m", "roadtruth.harness.cli", "observers"],
             "roadtruth simulate step_steer": [py, "-m", "roadtruth.harness.cli", "simulate", "step_steer", "--out", ""],
         }
-        # One untimed round first: numba's on-disk cache and the OS file cache are warm, as for a user's
-        # second command of the day (the first after an install also compiles).
+        # One untimed round first: numba's on-disk cache, the bytecode folder and the OS file cache
+        # are warm, as for a user's second command of the day (the first after an install also compiles).
         times: dict[str, list[float]] = {k: [] for k in cases}
         for k in range(a.repeat + 1):
             for name, argv in cases.items():  # interleaved, so load changes hit every case alike
@@ -55,11 +119,22 @@ def main() -> None:
                 dt = wall_s(argv, env)
                 if k > 0:
                     times[name].append(dt)
-    base, base_np = min(times["python -c pass"]), min(times["python -c 'import numpy'"])
-    print(f"\n{'what':<32} {'best s':>7} {'median s':>9} {'x pass':>7} {'x numpy':>8}")
-    for name, ts in times.items():
-        best, med = min(ts), statistics.median(ts)
-        print(f"{name:<32} {best:7.3f} {med:9.3f} {best / base:7.1f} {best / base_np:8.2f}")
+        base, base_np = min(times["python -c pass"]), min(times["python -c 'import numpy'"])
+        print(f"\n{'what':<32} {'best s':>7} {'median s':>9} {'x pass':>7} {'x numpy':>8}")
+        for name, ts in times.items():
+            best, med = min(ts), statistics.median(ts)
+            print(f"{name:<32} {best:7.3f} {med:9.3f} {best / base:7.1f} {best / base_np:8.2f}")
+        if not a.no_phases:
+            runs = [phases_s(env) for _ in range(a.repeat)]
+            print(f"\nroadtruth simulate step_steer, phase by phase ({a.repeat} fresh processes; "
+                  f"x numpy = best / best of 'import numpy' above)")
+            print(f"{'phase':<52} {'best s':>7} {'median s':>9} {'x numpy':>8}")
+            for name in runs[0]:
+                ts = [r[name] for r in runs]
+                print(f"{name:<52} {min(ts):7.3f} {statistics.median(ts):9.3f} {min(ts) / base_np:8.2f}")
+            totals = [sum(r.values()) for r in runs]
+            print(f"{'sum of phases':<52} {min(totals):7.3f} {statistics.median(totals):9.3f} "
+                  f"{min(totals) / base_np:8.2f}")
     print(f"\nload average after: {os.getloadavg()[0]:.2f}")
 
 
