@@ -165,6 +165,27 @@ def test_a_repeated_load_gives_equal_scenarios(step_steer_copy: Path) -> None:
     np.testing.assert_array_equal(a.road.samples, b.road.samples)
 
 
+def test_a_scenario_s_vehicle_is_parsed_once_and_an_edit_is_seen(tmp_path: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    from roadtruth.harness.truth import vehicle as vehicle_module
+
+    car = tmp_path / "car.yaml"
+    text = (vehicles_dir() / "sedan.yaml").read_text()
+    car.write_text(text)
+    scen = tmp_path / "step_steer.yaml"
+    scen.write_text((scenarios_dir() / "step_steer.yaml").read_text().replace("vehicle: sedan", f"vehicle: {car}"))
+    now = time.time_ns()
+    _set_mtime_ns(car, now - 2 * OLD_NS)
+    parses = _count_calls(monkeypatch, vehicle_module, "parse_vehicle")
+    sc = load_scenario(scen)
+    first = [sc.vehicle_params() for _ in range(3)]
+    assert len(parses) == 1 and all(v is first[0] for v in first)
+    assert first[0].mass_kg == 1500.0
+    _edit_same_size(car, "mass_kg: 1500.0", "mass_kg: 1600.0")
+    _set_mtime_ns(car, now - OLD_NS)
+    assert load_scenario(scen).vehicle_params().mass_kg == 1600.0 and len(parses) == 2
+
+
 # ---- the YAML reader: libyaml's parser under the module's own rules --------------------------------
 
 def _shipped_yaml_files() -> list[Path]:

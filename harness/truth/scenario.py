@@ -99,10 +99,29 @@ class Scenario:
         return dataclasses.replace(self, vehicle=_vehicle_ref(str(name_or_path), "command line", "--vehicle"))
 
     def vehicle_params(self) -> Any:
-        """The scenario's ``VehicleParams`` (loaded and validated)."""
-        from roadtruth.harness.truth.vehicle import load_vehicle
+        """The scenario's ``VehicleParams`` (loaded and validated; see :func:`vehicle_once`)."""
+        return vehicle_once(self.vehicle)
 
-        return load_vehicle(self.vehicle)
+
+#: Parsed vehicle sets: a suite asks for each scenario's car when it checks the choices, when it
+#: checks the observer options and when it runs. ``VehicleParams`` is frozen all through (numbers,
+#: strings and tuples), so one object can be handed to every caller.
+_VEHICLES = ParsedFiles()
+
+
+def vehicle_once(name_or_path: str) -> Any:
+    """``roadtruth.harness.truth.vehicle.load_vehicle(name_or_path)``, parsed once while its file is
+    unchanged (same path, modification time and size; a name is a shipped set's file)."""
+    from roadtruth.harness.truth.vehicle import load_vehicle, vehicles_dir
+
+    ref = str(name_or_path)
+    if tracing():
+        return load_vehicle(ref)
+    path = Path(ref)
+    if path.suffix.lower() not in (".yaml", ".yml"):
+        path = vehicles_dir() / f"{ref}.yaml"
+    # Keyed by the spelling too: VehicleParams.source is the path as given.
+    return _VEHICLES.get(path, lambda: load_vehicle(ref), variant=ref)
 
 
 # ---- the library ---------------------------------------------------------------------------------
