@@ -3,9 +3,11 @@ broken down by stage. Run by hand: ``python benchmarks/bench_run.py [--jobs N] [
 
 Each run's wall time is printed with its ratio to a baseline measured in the same invocation (a
 fresh ``python -c "import numpy"``, best of 3, before and after), so figures from a loaded machine
-compare. ``--render-sizes`` also prints what one scenario's render costs per frame at several
-resolutions (the render is the critical path of the default suite on a software GL renderer) and the
-size of what it writes, to choose the resolution by measurement.
+compare. ``--render-sizes`` also prints what one scenario's render costs under several render
+settings (video size, frame rate, x264 preset): CPU per frame of the rendering process and of the
+ffmpeg encoder (a child process, not in the render stage's time), the bytes written, with ratios to
+the settings before the choice, and where one frame's CPU goes (the figures the shipped
+``RenderSettings`` rest on).
 
 The first run in a fresh checkout also pays numba compilation (cached on disk afterwards) and the
 LMI designs (cached in the user cache folder); later runs show the steady state. Stage times are CPU
@@ -37,37 +39,120 @@ def baseline_s() -> float:
     return min(times)
 
 
-def render_sizes(sizes: tuple[tuple[int, int], ...] = ((640, 480), (480, 368), (320, 240))) -> None:
-    """Per-frame render cost of ``step_steer`` (key frames + video) at each size, interleaved, best of 2."""
+def _cpu_s(who: int) -> float:
+    """User + system CPU seconds of this process (all its threads: llvmpipe renders on several) or of
+    its waited-for children (the ffmpeg encoder) so far."""
+    import resource
+
+    r = resource.getrusage(who)
+    return r.ru_utime + r.ru_stime
+
+
+def render_options() -> dict[str, object]:
+    """The render settings compared by ``--render-sizes``: the settings before the choice, one change
+    at a time, and the shipped choice at lower frame rates and video sizes."""
+    from dataclasses import replace
+
+    from roadtruth.harness.report.render import RenderSettings
+
+    chosen = RenderSettings()
+    before = replace(chosen, video_size=(640, 480), x264_preset="veryfast", x264_crf=27)
+    return {
+        "before: video 640x480, x264 veryfast crf 27": before,
+        "video 640x480, ultrafast crf 30": replace(before, x264_preset="ultrafast", x264_crf=30),
+        "video 480x360, veryfast crf 27": replace(before, video_size=(480, 360)),
+        f"chosen: video {chosen.video_size[0]}x{chosen.video_size[1]}, {chosen.x264_preset} crf {chosen.x264_crf}": chosen,
+        "chosen at 8 fps": replace(chosen, video_fps=8),
+        "chosen at 6 fps": replace(chosen, video_fps=6),
+        "chosen, video 400x300": replace(chosen, video_size=(400, 300)),
+        "chosen, video 320x240": replace(chosen, video_size=(320, 240)),
+    }
+
+
+def frame_breakdown(source: object, size: tuple[int, int], n: int = 30) -> dict[str, float]:
+    """CPU per frame [s] of each step of drawing one frame at ``size``: posing (``mj_forward``), the GL
+    render with the colour readback (llvmpipe draws when the pixels are read), the annotation, the PNG."""
+    import resource
+
+    import cv2
+    import mujoco
+    import numpy as np
+
+    import roadtruth.harness.report.render as render
+
+    buffer = (max(size[0], 640), max(size[1], 480))
+    model = render.render_model(source.model_xml, buffer)  # type: ignore[attr-defined]
+    data = mujoco.MjData(model)
+    r = render.Offscreen.for_model(model, *buffer)
+    cam = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, "chase")
+    qpos = source.qpos  # type: ignore[attr-defined]
+    rows = np.linspace(0, qpos.shape[0] - 1, n).astype(int)
+    spent = dict.fromkeys(("mj_forward", "GL render + readback", "annotate", "PNG write"), 0.0)
+    try:
+        with tempfile.TemporaryDirectory(prefix="bench-frame-") as d:
+            for i in rows:
+                data.qpos[:] = qpos[i]
+                c = _cpu_s(resource.RUSAGE_SELF)
+                mujoco.mj_forward(model, data)
+                c1 = _cpu_s(resource.RUSAGE_SELF)
+                img = r.render(data, cam, size)
+                c2 = _cpu_s(resource.RUSAGE_SELF)
+                render.annotate(img, source.frame.iloc[i], beta_est=0.01, observer="ukf", label="")  # type: ignore[attr-defined]
+                c3 = _cpu_s(resource.RUSAGE_SELF)
+                cv2.imwrite(str(Path(d) / "f.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+                c4 = _cpu_s(resource.RUSAGE_SELF)
+                for key, dt in zip(spent, (c1 - c, c2 - c1, c3 - c2, c4 - c3), strict=True):
+                    spent[key] += dt / n
+    finally:
+        r.close()
+    return spent
+
+
+def render_sizes(scenario: str = "mu_step", repeats: int = 2) -> None:
+    """What one scenario's render (key frames + video) costs under each of ``render_options()``:
+    CPU of the rendering process and of the encoder (its child) per frame, bytes written; options
+    interleaved, best of ``repeats``, ratios to the settings before the choice."""
+    import resource
+
     import roadtruth.harness.report.render as render
     from roadtruth.harness.jobs.pipeline import prepare_scenario
     from roadtruth.harness.truth.simulate import simulate
 
-    source = render.RenderSource.from_truth(simulate(prepare_scenario("step_steer", None, None), seed=1))
-    best: dict[tuple[int, int], tuple[float, int, int]] = {}
-    default = (render.WIDTH, render.HEIGHT)
-    try:
-        for _ in range(2):
-            for w, h in sizes:
-                render.WIDTH, render.HEIGHT = w, h
-                with tempfile.TemporaryDirectory(prefix="bench-render-") as d:
-                    (Path(d) / "frames").mkdir()
-                    t = time.perf_counter()
-                    out = render.render_scenario(source, Path(d), "step_steer")
-                    per = (time.perf_counter() - t) / max(out.n_rendered, 1)
-                    size = sum(f.stat().st_size for f in Path(d).rglob("*") if f.is_file())
-                if out.reason:
-                    print(f"  render: {out.reason}")
-                    return
-                if (w, h) not in best or per < best[(w, h)][0]:
-                    best[(w, h)] = (per, out.n_rendered, size)
-    finally:
-        render.WIDTH, render.HEIGHT = default
-    ref = best[sizes[0]][0]
-    print(f"\nrender of step_steer per frame (load {os.getloadavg()[0]:.1f}):")
-    for (w, h), (per, n, size) in best.items():
-        print(f"  {w}x{h}: {per * 1e3:6.1f} ms/frame ({per / ref:.2f}x of {sizes[0][0]}x{sizes[0][1]}), "
-              f"{n} frames, {size / 1e3:.0f} kB written")
+    source = render.RenderSource.from_truth(simulate(prepare_scenario(scenario, None, None), seed=1))
+    options = render_options()
+    best: dict[str, tuple[float, float, int, int, int, int]] = {}
+    with tempfile.TemporaryDirectory(prefix="bench-render-") as d:  # the first render pays the GL context
+        render.render_scenario(source, Path(d), scenario, video=False)
+    for _ in range(repeats):
+        for label, settings in options.items():
+            with tempfile.TemporaryDirectory(prefix="bench-render-") as d:
+                own, enc = _cpu_s(resource.RUSAGE_SELF), _cpu_s(resource.RUSAGE_CHILDREN)
+                out = render.render_scenario(source, Path(d), scenario, settings=settings)  # type: ignore[arg-type]
+                own, enc = _cpu_s(resource.RUSAGE_SELF) - own, _cpu_s(resource.RUSAGE_CHILDREN) - enc
+                png = sum(f.stat().st_size for f in Path(d).glob("frames/*.png"))
+                mp4 = sum(f.stat().st_size for f in Path(d).glob("videos/*.mp4"))
+            if out.reason:
+                print(f"  render: {out.reason}")
+                return
+            if label not in best or own + enc < best[label][0] + best[label][1]:
+                best[label] = (own, enc, out.n_rendered, len(out.frames), png, mp4)
+    ref_label = next(iter(options))
+    ref_own, ref_enc = best[ref_label][:2]
+    print(f"\nrender of {scenario}, CPU per option (best of {repeats}, load {os.getloadavg()[0]:.1f}); "
+          f"ratios to '{ref_label}':")
+    for label, (own, enc, n, n_keys, png, mp4) in best.items():
+        n_video = max(n - n_keys, 1)
+        print(f"  {label:<45} {n_keys} key + {n_video} video frames: render {own / n * 1e3:5.1f} ms/frame, "
+              f"encoder {enc / n_video * 1e3:4.1f} ms/video frame; scenario {own + enc:5.2f} s CPU "
+              f"({(own + enc) / (ref_own + ref_enc):.2f}x; render {own / ref_own:.2f}x, encoder "
+              f"{enc / max(ref_enc, 1e-9):.2f}x); PNG {png / 1e3:.0f} kB, MP4 {mp4 / 1e3:.0f} kB")
+    chosen = render.RenderSettings()
+    print(f"\nwhere one frame's CPU goes (mean of 30 {scenario} frames, load {os.getloadavg()[0]:.1f}):")
+    for size in dict.fromkeys((chosen.frame_size, chosen.video_size, (640, 480), (320, 240))):
+        parts = frame_breakdown(source, size)
+        total = sum(parts.values())
+        print(f"  {size[0]}x{size[1]}: {total * 1e3:5.1f} ms = " + ", ".join(
+            f"{k} {v * 1e3:.2f} ms ({v / total:.0%})" for k, v in parts.items()))
 
 
 def cold_start(jobs: int, render: bool) -> None:

@@ -5,6 +5,13 @@ render shows exactly what was simulated. Key frames are taken at the start, the 
 at every scenario event; the video samples the whole run at ``VIDEO_FPS`` frames per second of
 video, at most ``MAX_VIDEO_S`` seconds (longer runs play faster than real time).
 
+Sizes and encoder settings (:class:`RenderSettings`) were chosen by measurement on Mesa's software
+renderer (``benchmarks/bench_run.py --render-sizes``): the GL render costs in proportion to the
+pixels drawn, so the video, which the report shows 480 pixels wide, is drawn at 480 x 360 into the
+same offscreen buffer as the 640 x 480 key frames (which open full size from the report), with its
+annotations scaled to the frame; x264's ``ultrafast`` preset encodes it at under half the CPU of
+``veryfast`` for a larger file of no lower quality.
+
 Offscreen GL needs ``MUJOCO_GL`` (egl or osmesa) set before mujoco is first imported; this module
 sets ``egl`` if nothing was chosen. When no GL context can be made, :func:`render_scenario`
 returns a ``RenderResult`` whose ``reason`` says why, and the report says so.
@@ -23,12 +30,41 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-WIDTH, HEIGHT = 640, 480
+WIDTH, HEIGHT = 640, 480  # key frames [pixels]
+VIDEO_WIDTH, VIDEO_HEIGHT = 480, 360  # video frames [pixels]: the width the report plays it at
 VIDEO_FPS = 10
 MAX_VIDEO_S = 6.0
+ANNOTATION_WIDTH = 640  # frame width [pixels] the annotation layout is drawn for; scaled to others ...
+# ... but not below this: at 0.85 a 480-pixel video frame, played 1:1 in the report, reads better than
+# a 640-pixel one the browser scales to 480 (at 0.75 the wheel labels blur).
+ANNOTATION_MIN_SCALE = 0.85
 MAX_KEY_FRAMES = 8
 PLANE_GRID_M = 5.0  # render grid of the ground plane [m]
+TESSELLATION = (16, 2, 1)  # MuJoCo visual/quality numslices, numstacks, numquads (at most)
 WHEELS = ("fl", "fr", "rl", "rr")
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How a scenario is rendered: frame sizes [pixels], video rate [frames per second of video] and
+    length cap [s], and the H.264 encoder's speed preset and constant rate factor (lower: better)."""
+
+    frame_size: tuple[int, int] = (WIDTH, HEIGHT)
+    video_size: tuple[int, int] = (VIDEO_WIDTH, VIDEO_HEIGHT)
+    video_fps: float = VIDEO_FPS
+    max_video_s: float = MAX_VIDEO_S
+    x264_preset: str = "ultrafast"
+    x264_crf: int = 30
+
+    def __post_init__(self) -> None:
+        for w, h in (self.frame_size, self.video_size):
+            if w < 2 or h < 2 or w % 2 or h % 2:  # yuv420p video needs even sizes
+                raise ValueError(f"render sizes must be even and at least 2x2 pixels, not {w}x{h}")
+
+    @property
+    def buffer_size(self) -> tuple[int, int]:
+        """The offscreen buffer both sizes are drawn into [pixels]."""
+        return (max(self.frame_size[0], self.video_size[0]), max(self.frame_size[1], self.video_size[1]))
 
 
 @dataclass(frozen=True)
@@ -85,9 +121,9 @@ def key_times(t0: float, t1: float, events: list[tuple[float, str]]) -> list[tup
     return out
 
 
-def video_times(t0: float, t1: float) -> np.ndarray:
-    """Sample times of the video frames [s]: real time at VIDEO_FPS, capped at MAX_VIDEO_S of video."""
-    n = int(min(math.ceil((t1 - t0) * VIDEO_FPS), MAX_VIDEO_S * VIDEO_FPS)) + 1
+def video_times(t0: float, t1: float, fps: float = VIDEO_FPS, max_s: float = MAX_VIDEO_S) -> np.ndarray:
+    """Sample times of the video frames [s]: real time at ``fps``, capped at ``max_s`` seconds of video."""
+    n = int(min(math.ceil((t1 - t0) * fps), max_s * fps)) + 1
     return np.linspace(t0, t1, max(n, 2))
 
 
@@ -119,6 +155,9 @@ def annotate(img: np.ndarray, row: pd.Series, *, beta_est: float | None, observe
              label: str = "") -> np.ndarray:
     """Overlay time, speed, true vs estimated sideslip and mu under each wheel on an RGB image (in place).
 
+    The layout is drawn for a frame ``ANNOTATION_WIDTH`` pixels wide and scaled to the image's width
+    (at least by ``ANNOTATION_MIN_SCALE``), so a smaller video frame keeps most of its picture.
+
     Parameters
     ----------
     img : (H, W, 3) uint8 RGB image; returned, modified.
@@ -130,14 +169,19 @@ def annotate(img: np.ndarray, row: pd.Series, *, beta_est: float | None, observe
     import cv2
 
     h, w = img.shape[:2]
+    k = max(w / ANNOTATION_WIDTH, ANNOTATION_MIN_SCALE)
+
+    def px(v: float) -> int:
+        return int(round(v * k))
+
     font = cv2.FONT_HERSHEY_SIMPLEX
     label = ascii_text(label)
     box_w = max(330, 24 + cv2.getTextSize(label, font, 0.5, 1)[0][0]) if label else 330
-    _shade(img, 8, 8, min(w, 8 + box_w), 100 if label else 84)
-    _shade(img, w - 118, h - 128, w - 8, h - 8)
+    _shade(img, px(8), px(8), min(w, px(8 + box_w)), px(100 if label else 84))
+    _shade(img, w - px(118), h - px(128), w - px(8), h - px(8))
 
     def put(text: str, y: int, colour: tuple[int, int, int] = (255, 255, 255), x: int = 16) -> None:
-        cv2.putText(img, ascii_text(text), (x, y), font, 0.5, colour, 1, cv2.LINE_AA)
+        cv2.putText(img, ascii_text(text), (px(x), px(y)), font, 0.5 * k, colour, 1, cv2.LINE_AA)
 
     t = float(row.get("t_s", math.nan))
     vx = float(row.get("vx_mps", math.nan))
@@ -151,15 +195,16 @@ def annotate(img: np.ndarray, row: pd.Series, *, beta_est: float | None, observe
     if label:
         put(label, 94, (120, 210, 255))
     # A plan view of the four wheels (front up), each filled with the colour of the friction under it.
-    cx, cy = w - 63, h - 72
+    cx, cy = w - px(63), h - px(72)
     for wheel, (dx, dy) in zip(WHEELS, ((-24, -34), (16, -34), (-24, 14), (16, 14)), strict=True):
         mu = float(row.get(f"mu_{wheel}", math.nan))
         colour = _mu_colour(mu) if math.isfinite(mu) else (90, 90, 90)
-        cv2.rectangle(img, (cx + dx, cy + dy), (cx + dx + 8, cy + dy + 20), colour, -1)
-        cv2.putText(img, f"{mu:.1f}" if math.isfinite(mu) else "?", (cx + dx - 22 if dx < 0 else cx + dx + 11,
-                    cy + dy + 14), font, 0.36, (255, 255, 255), 1, cv2.LINE_AA)
-    cv2.rectangle(img, (cx - 14, cy - 30), (cx + 14, cy + 30), (50, 120, 200), 1)
-    cv2.putText(img, "mu", (cx - 9, cy + 54), font, 0.4, (220, 220, 220), 1, cv2.LINE_AA)
+        cv2.rectangle(img, (cx + px(dx), cy + px(dy)), (cx + px(dx + 8), cy + px(dy + 20)), colour, -1)
+        cv2.putText(img, f"{mu:.1f}" if math.isfinite(mu) else "?",
+                    (cx + px(dx - 22 if dx < 0 else dx + 11), cy + px(dy + 14)), font, 0.36 * k, (255, 255, 255), 1,
+                    cv2.LINE_AA)
+    cv2.rectangle(img, (cx - px(14), cy - px(30)), (cx + px(14), cy + px(30)), (50, 120, 200), 1)
+    cv2.putText(img, "mu", (cx - px(9), cy + px(54)), font, 0.4 * k, (220, 220, 220), 1, cv2.LINE_AA)
     return img
 
 
@@ -177,6 +222,38 @@ def _estimate_at(est: pd.DataFrame | None, times: np.ndarray) -> np.ndarray:
     return out
 
 
+def render_model(model_xml: str, buffer_size: tuple[int, int]) -> Any:
+    """The ``MjModel`` of ``model_xml`` set up for cheap offscreen frames of up to ``buffer_size``
+    (width, height) [pixels] on a software GL renderer (what each setting saves is said where it is set)."""
+    import mujoco
+
+    model = mujoco.MjModel.from_xml_string(model_xml)
+    buf_w, buf_h = buffer_size
+    model.vis.global_.offwidth = max(model.vis.global_.offwidth, buf_w)
+    model.vis.global_.offheight = max(model.vis.global_.offheight, buf_h)
+    # Multisampling triples the cost on llvmpipe (software GL) for little visible gain.
+    model.vis.quality.offsamples = 0
+    # Shadows are off (Offscreen): no shadow map to allocate and clear for every model.
+    model.vis.quality.shadowsize = 0
+    # Tessellation: software GL pays per vertex, and MuJoCo's defaults (28 slices, 16 stacks, 4x4
+    # quads per box face) give the eight wheel cylinders and the car's and markings' boxes
+    # thousands of vertices a 40-pixel tyre does not show: 16 slices round a tyre's outline, and
+    # under directional lights stacks and face quads change no pixel. Measured: ~0.8x the frame
+    # cost; < 0.1 % of pixels move by more than 8 of 255.
+    model.vis.quality.numslices = min(model.vis.quality.numslices, TESSELLATION[0])
+    model.vis.quality.numstacks = min(model.vis.quality.numstacks, TESSELLATION[1])
+    model.vis.quality.numquads = min(model.vis.quality.numquads, TESSELLATION[2])
+    # A plane is drawn as a grid of quads at its third size (the car model's 0.1 m gives
+    # MuJoCo's maximum grid over a road hundreds of metres long); under a directional light
+    # a 5 m grid lights the same pixels (mean difference 0.04 of 255) at 0.4x the frame cost.
+    planes = model.geom_type == mujoco.mjtGeom.mjGEOM_PLANE
+    model.geom_size[planes, 2] = np.maximum(model.geom_size[planes, 2], PLANE_GRID_M)
+    # znear is relative to the model extent, which the long road makes ~300 m: without this the
+    # ground closer than ~6 m to the chase camera is clipped away.
+    model.vis.map.znear = min(model.vis.map.znear, 0.2 / max(model.stat.extent, 1e-6))
+    return model
+
+
 class Offscreen:
     """Offscreen MuJoCo rendering on one GL context per process, reused for every model it draws.
 
@@ -184,6 +261,10 @@ class Offscreen:
     ``MjrContext`` of a context costs ~0.35 s (shader and font set-up), later ones ~0.04 s, so a
     process that renders several scenarios keeps its context. The per-model part (``MjrContext``:
     textures, meshes; the scene) is made by :meth:`for_model` and freed by :meth:`close`.
+
+    ``width`` x ``height`` is the largest image drawn (the model's offscreen buffer must be at least
+    that big); smaller images are drawn into the lower-left corner of the same buffer, which costs
+    in proportion to the pixels drawn and needs no second buffer or context.
     """
 
     _gl: Any = None           # the process's GL context ...
@@ -203,8 +284,10 @@ class Offscreen:
         self.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
         self.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
         self.option = mujoco.MjvOption()
-        self.viewport = mujoco.MjrRect(0, 0, width, height)
-        self._rgb = np.empty((height, width, 3), dtype=np.uint8)
+        if width > self.context.offWidth or height > self.context.offHeight:
+            raise ValueError(f"a {width}x{height} image does not fit the model's offscreen buffer "
+                             f"({self.context.offWidth}x{self.context.offHeight}: visual/global offwidth, offheight)")
+        self._rgb: dict[tuple[int, int], np.ndarray] = {}  # readback buffer per image size
 
     @classmethod
     def for_model(cls, model: Any, width: int, height: int) -> Offscreen:
@@ -218,9 +301,17 @@ class Offscreen:
         cls._gl.make_current()
         return cls(model, width, height)
 
-    def render(self, data: Any, camera: int) -> np.ndarray:
-        """RGB image (height, width, 3) uint8 of ``data`` seen from fixed camera ``camera`` (-1: free)."""
+    def render(self, data: Any, camera: int, size: tuple[int, int] | None = None) -> np.ndarray:
+        """RGB image (height, width, 3) uint8 of ``data`` seen from fixed camera ``camera`` (-1: free),
+        ``size`` = (width, height) [pixels], at most the renderer's (its size if None)."""
         mujoco = self._mujoco
+        width, height = size or (self.width, self.height)
+        if width > self.width or height > self.height:
+            raise ValueError(f"a {width}x{height} image is larger than this renderer's {self.width}x{self.height}")
+        rgb = self._rgb.get((width, height))
+        if rgb is None:
+            rgb = self._rgb[(width, height)] = np.empty((height, width, 3), dtype=np.uint8)
+        viewport = mujoco.MjrRect(0, 0, width, height)
         cam = mujoco.MjvCamera()
         if camera >= 0:
             cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
@@ -228,9 +319,9 @@ class Offscreen:
         else:
             mujoco.mjv_defaultFreeCamera(self.model, cam)
         mujoco.mjv_updateScene(self.model, data, self.option, None, cam, mujoco.mjtCatBit.mjCAT_ALL, self.scene)
-        mujoco.mjr_render(self.viewport, self.scene, self.context)
-        mujoco.mjr_readPixels(self._rgb, None, self.viewport, self.context)
-        return np.flipud(self._rgb).copy()  # GL rows run bottom-up; the caller draws on its own copy
+        mujoco.mjr_render(viewport, self.scene, self.context)
+        mujoco.mjr_readPixels(rgb, None, viewport, self.context)  # colour only: depth is not used
+        return np.flipud(rgb).copy()  # GL rows run bottom-up; the caller draws on its own copy
 
     def close(self) -> None:
         """Free the model's GPU resources (the process's GL context stays for the next model)."""
@@ -245,6 +336,7 @@ def render_scenario(
     beta_estimates: pd.DataFrame | None = None,
     observer: str | None = None,
     video: bool = True,
+    settings: RenderSettings = RenderSettings(),
 ) -> RenderResult:
     """Render key frames (PNG, ``frames/``) and a video (MP4, ``videos/``) of one simulated scenario.
 
@@ -259,6 +351,10 @@ def render_scenario(
         ``t_s, value`` of the sideslip estimate to print next to the truth.
     observer : str, optional
         Whose estimate it is (printed).
+    video : bool
+        Also write the video (key frames only if False).
+    settings : RenderSettings
+        Frame and video sizes, video rate and length, encoder settings.
     """
     import time
 
@@ -272,24 +368,13 @@ def render_scenario(
     if frame.empty or qpos.size == 0:
         return RenderResult(reason="nothing to render (empty truth)")
     try:
-        model = mujoco.MjModel.from_xml_string(truth.model_xml)
-        model.vis.global_.offwidth = max(model.vis.global_.offwidth, WIDTH)
-        model.vis.global_.offheight = max(model.vis.global_.offheight, HEIGHT)
-        # Multisampling triples the cost on llvmpipe (software GL) for little visible gain.
-        model.vis.quality.offsamples = 0
-        # A plane is drawn as a grid of quads at its third size (the car model's 0.1 m gives
-        # MuJoCo's maximum grid over a road hundreds of metres long); under a directional light
-        # a 5 m grid lights the same pixels (mean difference 0.04 of 255) at 0.4x the frame cost.
-        planes = model.geom_type == mujoco.mjtGeom.mjGEOM_PLANE
-        model.geom_size[planes, 2] = np.maximum(model.geom_size[planes, 2], PLANE_GRID_M)
-        # znear is relative to the model extent, which the long road makes ~300 m: without this the
-        # ground closer than ~6 m to the chase camera is clipped away.
-        model.vis.map.znear = min(model.vis.map.znear, 0.2 / max(model.stat.extent, 1e-6))
+        buf_w, buf_h = settings.buffer_size
+        model = render_model(truth.model_xml, (buf_w, buf_h))
         data = mujoco.MjData(model)
     except Exception as e:
         return RenderResult(reason=f"model could not be rebuilt for rendering: {e}")
     try:
-        renderer = Offscreen.for_model(model, WIDTH, HEIGHT)
+        renderer = Offscreen.for_model(model, buf_w, buf_h)
     except Exception as e:
         backend = os.environ.get("MUJOCO_GL", "")
         return RenderResult(reason=f"offscreen OpenGL unavailable (MUJOCO_GL={backend or 'unset'}): "
@@ -301,7 +386,7 @@ def render_scenario(
     n_q = min(qpos.shape[0], t_frame.size)
     (run_dir / "frames").mkdir(parents=True, exist_ok=True)
 
-    def draw(t: float, label: str, beta_est: float) -> np.ndarray:
+    def draw(t: float, label: str, beta_est: float, size: tuple[int, int]) -> np.ndarray:
         i = int(_nearest_rows(t_frame[:n_q], np.array([t]))[0])
         data.qpos[:] = qpos[i]
         if lead_mocap >= 0 and "lead_x_m" in frame:
@@ -309,7 +394,7 @@ def render_scenario(
             if math.isfinite(lx) and math.isfinite(ly):
                 data.mocap_pos[lead_mocap, :2] = (lx, ly)
         mujoco.mj_forward(model, data)
-        rgb = renderer.render(data, camera)
+        rgb = renderer.render(data, camera, size)
         return annotate(rgb, frame.iloc[i], beta_est=beta_est, observer=observer, label=label)
 
     import cv2
@@ -323,7 +408,7 @@ def render_scenario(
         keys = key_times(t0, t1, events)
         est_keys = _estimate_at(beta_estimates, np.array([k[0] for k in keys]))
         for j, ((t, label), b) in enumerate(zip(keys, est_keys, strict=True)):
-            img = draw(t, label, float(b))
+            img = draw(t, label, float(b), settings.frame_size)
             rel = f"frames/{name}_{j:02d}.png"
             cv2.imwrite(str(run_dir / rel), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
             frames.append({"file": rel, "t_s": round(t, 4), "label": label})
@@ -333,15 +418,18 @@ def render_scenario(
 
             (run_dir / "videos").mkdir(parents=True, exist_ok=True)
             video_rel = f"videos/{name}.mp4"
-            times = video_times(t0, t1)
+            times = video_times(t0, t1, settings.video_fps, settings.max_video_s)
             est_v = _estimate_at(beta_estimates, times)
+            # macro_block_size=2: H.264 crops any even size from whole macroblocks itself (as for
+            # 1080p); imageio's default (16) would rescale a 480x360 frame to 480x368 in ffmpeg.
             writer = imageio_ffmpeg.write_frames(
-                str(run_dir / video_rel), (WIDTH, HEIGHT), fps=VIDEO_FPS, codec="libx264",
-                pix_fmt_out="yuv420p", quality=None, macro_block_size=16, ffmpeg_log_level="error",
-                output_params=["-preset", "veryfast", "-crf", "27", "-movflags", "+faststart"])
+                str(run_dir / video_rel), settings.video_size, fps=settings.video_fps, codec="libx264",
+                pix_fmt_out="yuv420p", quality=None, macro_block_size=2, ffmpeg_log_level="error",
+                output_params=["-preset", settings.x264_preset, "-crf", str(settings.x264_crf),
+                               "-movflags", "+faststart"])
             writer.send(None)
             for t, b in zip(times, est_v, strict=True):
-                writer.send(draw(float(t), "", float(b)))
+                writer.send(draw(float(t), "", float(b), settings.video_size))
                 n_rendered += 1
             writer.close()
     except Exception as e:  # a render failure must not cost the rest of the report
