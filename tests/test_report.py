@@ -171,7 +171,8 @@ def test_ranks_ties_share_the_best_rank_and_empty_cells_get_none():
             ("s2", "a", "ok", 3.0), ("s2", "b", "diverged", 0.1), ("s2", "c", "ok", 1.0), ("s2", "d", "ok", None),
             ("s3", "d", "ok", 5.0)]
     m = pd.DataFrame(rows, columns=["scenario", "observer", "status", "rmse"]).assign(state="beta_rad")
-    for frame in (m, m.iloc[::-1]):  # row order (and names' alphabetical order) must not matter
+    # Row order (and names' alphabetical order) must not matter; rows as dicts rank as the frame.
+    for frame in (m, m.iloc[::-1], m.to_dict("records"), m.iloc[::-1].to_dict("records")):
         r = rank_state(frame, "beta_rad", "rmse", "low", ["s1", "s2", "s3"])
         assert r["a"].ranks == {"s1": 1, "s2": 2} and r["b"].ranks == {"s1": 1}
         assert r["c"].ranks == {"s1": 3, "s2": 1} and r["d"].ranks == {"s3": 1}
@@ -326,3 +327,59 @@ def test_figures_read_one_state_of_a_wide_table_and_draw_what_the_long_frame_dra
         ekf = files.series_of("beta_rad")[1]
         n = len(files.truth)
         assert ekf.t_s.size == n - (n // 2 - n // 3) and np.isnan(ekf.lo).all()
+
+
+def test_the_tables_of_a_page_do_not_filter_the_metrics_frame_per_row(run_dir: Path, monkeypatch: pytest.MonkeyPatch):
+    """The summary, leaderboard, observers and scenario headers read the metrics rows once (as
+    ``RunData.records``): filtering the pandas frame per state, observer and cell cost seconds on
+    the default suite. Counted: boolean-mask selections of the metrics frame during a page build."""
+    run = RunData.load(run_dir)
+    metrics_id = id(run.metrics)
+    selections = []
+    real = pd.DataFrame.__getitem__
+
+    def counting(self, key):
+        if id(self) == metrics_id and isinstance(key, pd.Series) and key.dtype == bool:
+            selections.append(key.sum())
+        return real(self, key)
+
+    monkeypatch.setattr(pd.DataFrame, "__getitem__", counting)
+    text = ReportBuilder(run).build()
+    assert "fig-step_steer-beta_rad" in text
+    assert selections == [], f"{len(selections)} filters of the metrics frame"
+
+
+@pytest.mark.parametrize("kind", ["float", "int", "text", "missing"])
+def test_parquet_state_columns_are_read_as_the_whole_table_reads_them(tmp_path: Path, kind: str):
+    """A Parquet estimates table's columns come back (one at a time) as float arrays equal to the
+    whole table's columns, in the order asked; a text column gives None (the caller then names
+    it), a column the file lacks is a ValueError (the report's "unreadable Parquet")."""
+    import pyarrow.parquet as pq
+
+    from roadtruth.harness.report.rundata import read_numeric_columns
+
+    n = 1000
+    rng = np.random.default_rng(1)
+    frame = pd.DataFrame({"t_s": np.arange(n) * 0.01, "segment": np.repeat([0, 1], n // 2),
+                          "a.beta_rad": rng.standard_normal(n), "a.beta_rad_var": rng.random(n)})
+    frame.loc[100:200, "a.beta_rad"] = np.nan
+    frame.loc[5, "a.beta_rad_var"] = np.inf
+    if kind == "text":
+        frame["a.beta_rad_var"] = frame["a.beta_rad_var"].map(str)
+    path = tmp_path / "estimates.parquet"
+    frame.to_parquet(path)
+    asked = {"float": ["a.beta_rad_var", "t_s", "a.beta_rad"], "int": ["t_s", "segment"],
+             "text": ["t_s", "a.beta_rad_var"], "missing": ["t_s", "b.beta_rad"]}[kind]
+    if kind == "missing":
+        with pytest.raises(ValueError, match="b.beta_rad"):
+            read_numeric_columns(path, asked)
+        return
+    got = read_numeric_columns(path, asked)
+    if kind == "text":
+        assert got is None
+        return
+    whole = pq.read_table(path).to_pandas()
+    assert list(got) == asked
+    for c in asked:
+        assert got[c].dtype == np.float64
+        np.testing.assert_array_equal(got[c], whole[c].to_numpy(float))

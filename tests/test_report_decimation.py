@@ -226,3 +226,67 @@ def test_the_pages_decoder_and_the_python_twin_agree(tmp_path: Path):
         assert np.array_equal(np.isnan(ya), np.isnan(yb)) and np.allclose(ya, yb, atol=1e-9, equal_nan=True)
         xa = a["x"] if a.get("x") is not None else (a["x0"] + a["dx"] * np.arange(ya.size)).tolist()
         assert np.allclose(xa, b["x"], atol=1e-9)
+
+
+def _union_envelope(x: np.ndarray, y: np.ndarray, columns: int) -> np.ndarray:
+    """The envelope's definition written out with set unions (as the figures' first version did):
+    in each pixel column of the finite samples, the first, last and first lowest and highest one,
+    plus the first sample of every run of missing ones; every finite sample when they are few."""
+    finite = np.isfinite(x) & np.isfinite(y)
+    gaps = np.flatnonzero(~finite & np.r_[True, finite[:-1]])
+    fi = np.flatnonzero(finite)
+    if y.size <= 4 * columns:
+        return np.arange(y.size)
+    if fi.size <= 4 * columns:
+        return np.union1d(fi, gaps)
+    cols = _bins(x[fi], columns)
+    keep = []
+    for c in np.unique(cols):
+        members = fi[cols == c]
+        v = y[members]
+        keep += [members[0], members[-1], members[np.argmin(v)], members[np.argmax(v)]]
+    return np.union1d(np.asarray(keep), gaps)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_envelope_is_the_union_of_each_columns_first_last_min_max_and_the_gaps(seed: int):
+    """The kept samples are exactly the envelope's definition: sorted, unique, with missing runs
+    (NaN, ±inf), repeated minima and flat stretches, on long and on short traces."""
+    rng = np.random.default_rng(seed)
+    columns = 50
+    for n in (150, 199, 200, 201, 5_000):
+        x = np.cumsum(rng.uniform(0.001, 0.02, n))
+        y = np.round(rng.standard_normal(n), 1)  # rounded: many equal minima and maxima in a column
+        y[rng.integers(0, n, n // 20)] = np.nan
+        y[rng.integers(0, n, 3)] = np.inf
+        y[n // 3: n // 3 + n // 10] = np.nan  # a long gap
+        y[-n // 8:] = 0.25  # a flat end
+        idx = envelope_indices(x, y, columns)
+        assert idx.dtype == np.int64 and np.all(np.diff(idx) > 0)
+        np.testing.assert_array_equal(idx, _union_envelope(x, y, columns))
+
+
+def test_a_long_logs_figure_needs_little_more_memory_than_its_series():
+    """A figure of 15 observers' β with bounds over 550 s at 100 Hz (19 MB of series) works in at
+    most 2.5 times that memory: the value grid is found array by array, not from one array of every
+    value and bound (3.8 times before), so the report of a long log does not set a command's peak."""
+    import tracemalloc
+
+    rng = np.random.default_rng(3)
+    n = 55_000
+    t = np.arange(n) * 0.01
+    beta = 0.05 * np.sin(0.3 * t)
+    truth = pd.DataFrame({"t_s": t, "beta_rad": beta})
+    series = []
+    for i in range(15):
+        v = beta + 0.002 * rng.standard_normal(n)
+        series.append(ObserverSeries(f"o{i}", t, v, v - 0.01 - 0.001 * rng.random(n), v + 0.01 + 0.001 * rng.random(n)))
+    data = sum(a.nbytes for s in series for a in (s.value, s.lo, s.hi))
+    tracemalloc.start()
+    try:
+        spec = state_figure("beta_rad", truth, series, {}, [])
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert len([d for d in spec["data"] if d["name"].endswith(" error")]) == 15
+    assert peak < 2.5 * data, f"peak {peak / 2**20:.1f} MB for {data / 2**20:.1f} MB of series"

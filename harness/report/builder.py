@@ -70,14 +70,17 @@ def design_statuses(run: RunData) -> dict[str, str]:
             if isinstance(r, dict) and r.get("design_status") in order:
                 seen.setdefault(obs, []).append(r["design_status"])
     out = {}
-    m = run.metrics
+    applicable: dict[str, list[dict]] = {}  # observer -> its rows that are not "not applicable"
+    for r in run.records:
+        if status_kind(r["status"]) != NOT_APPLICABLE:
+            applicable.setdefault(str(r["observer"]), []).append(r)
     for obs in run.observer_names:
         if obs in seen:
             out[obs] = min(seen[obs], key=order.index)
             continue
-        rows = m[(m["observer"] == obs) & (m["status"].map(status_kind) != NOT_APPLICABLE)]
+        rows = applicable.get(obs, [])
         c = certification_of(rows)
-        if rows.empty:
+        if not rows:
             out[obs] = "not_evaluated"
         else:
             out[obs] = {"certified": "certified", "not certified": "rejected"}.get(c, "not_applicable")

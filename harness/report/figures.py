@@ -18,7 +18,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from roadtruth.harness.report.plot_data import ArrayPool, compact_values, envelope_indices, grid_exponent
+from roadtruth.harness.report.plot_data import (
+    ArrayPool,
+    compact_values,
+    envelope_indices,
+    grid_exponent,
+    largest_magnitude,
+)
 from roadtruth.harness.report.rundata import ObserverSeries, observer_series
 from roadtruth.harness.report.styles import (  # noqa: F401 - re-exported: other pages import styles from here
     PALETTE,
@@ -199,8 +205,11 @@ def state_figure(
     e_range, e_clipped = _error_range([e for e in errors if e.size], float(tv.max() - tv.min()) if tv.size else 0.0, unit)
     # One value grid for the truth, the estimates and their bounds, fine enough for both panels, so
     # that an estimate minus the truth is exact on it; explicit errors get their own panel's grid.
-    every = np.concatenate([tv, *values, *(o.lo * scale for o in series), *(o.hi * scale for o in series)])
-    exp = grid_exponent(min(y_range[1] - y_range[0], e_range[1] - e_range[0]), every)
+    # (The largest magnitude taken array by array: one array of every observer's values and bounds
+    # was the figure's peak memory on a long log.)
+    peak = max([largest_magnitude(tv), *map(largest_magnitude, values),
+                *(largest_magnitude(o.lo * scale) for o in series), *(largest_magnitude(o.hi * scale) for o in series)])
+    exp = grid_exponent(min(y_range[1] - y_range[0], e_range[1] - e_range[0]), np.array([peak]))
     exp_err = grid_exponent(e_range[1] - e_range[0])
     pool = ArrayPool()
     traces: list[dict[str, Any]] = []

@@ -36,9 +36,12 @@ def short_status(status: str) -> str:
     return status.split(":", 1)[0].strip() or "ok"
 
 
-def certification_of(rows: pd.DataFrame) -> str:
-    """'certified' if every design was certified, 'not certified' if any was not, else 'n/a'."""
-    vals = [v for v in rows.get("certified", pd.Series(dtype=object)).tolist() if _truthy(v) is not None]
+def certification_of(rows: pd.DataFrame | list[dict[str, Any]]) -> str:
+    """'certified' if every design was certified, 'not certified' if any was not, else 'n/a'.
+    ``rows``: metrics rows, as a frame or as dicts (``RunData.records``)."""
+    cells = (rows.get("certified", pd.Series(dtype=object)).tolist() if isinstance(rows, pd.DataFrame)
+             else [r.get("certified") for r in rows])
+    vals = [v for v in cells if _truthy(v) is not None]
     if not vals:
         return "n/a"
     return "certified" if all(_truthy(v) for v in vals) else "not certified"

@@ -89,6 +89,7 @@ class ScenariosSection(Section):
                 figures.append({"id": f"fig-{slug(name)}-{slug(state)}",
                                 "spec": state_figure(state, truth, est, page.styles, events, until, reason),
                                 "wide": False})
+                del est  # a long log's one state is tens of MB: never hold two states' arrays at once
             render = entry.get("render", {}) or {}
             frames = [f for f in render.get("frames", []) if (run.folder / f.get("file", "")).is_file()]
             video = render.get("video")
@@ -111,4 +112,5 @@ class ScenariosSection(Section):
                 "video": video,
                 "render_reason": render.get("reason"),
             })
+            del files, truth  # this scenario's tables, before the next one's are read
         return {"scenarios": items, "plot_columns": PIXEL_COLUMNS, "plot_steps": STEPS_PER_SPAN}
