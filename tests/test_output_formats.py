@@ -50,7 +50,9 @@ def awkward_frame(n: int = 257) -> pd.DataFrame:
 def test_csv_writer_writes_the_bytes_of_pandas_to_csv(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(table_io, "CSV_BLOCK_ROWS", 50)  # several blocks, one of them partial
     f = awkward_frame()
-    for cols in (list(f.columns), ["text"], ["small"], ["t_s", "small", "large", "count"]):
+    f["x, \"tiny\""] = np.where(np.arange(len(f)) % 7 == 0, np.nan, 5e-324 * np.arange(len(f)))  # a name to quote
+    for cols in (list(f.columns), ["text"], ["small"], ["t_s", "small", "large", "count"],
+                 ["t_s", "small", "large", 'x, "tiny"']):  # the last: all floats, one format per block
         write_csv_table(f[cols], tmp_path / "fast.csv")
         f[cols].to_csv(tmp_path / "pandas.csv", index=False, float_format=FLOAT_FORMAT, na_rep="",
                        lineterminator="\n")

