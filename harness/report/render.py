@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -151,7 +152,7 @@ def _shade(img: np.ndarray, x0: int, y0: int, x1: int, y1: int) -> None:
     roi[:] = (roi.astype(np.uint16) * 45 // 100 + 9).astype(np.uint8)
 
 
-def annotate(img: np.ndarray, row: pd.Series, *, beta_est: float | None, observer: str | None,
+def annotate(img: np.ndarray, row: Mapping[str, float], *, beta_est: float | None, observer: str | None,
              label: str = "") -> np.ndarray:
     """Overlay time, speed, true vs estimated sideslip and mu under each wheel on an RGB image (in place).
 
@@ -161,7 +162,7 @@ def annotate(img: np.ndarray, row: pd.Series, *, beta_est: float | None, observe
     Parameters
     ----------
     img : (H, W, 3) uint8 RGB image; returned, modified.
-    row : the truth row shown (t_s, vx_mps, beta_rad, mu_fl … mu_rr).
+    row : the truth values shown (t_s, vx_mps, beta_rad, mu_fl … mu_rr), a dict or a Series row.
     beta_est : the estimate of beta [rad] at that time, or None/NaN.
     observer : whose estimate it is.
     label : event label, printed on its own line.
@@ -383,6 +384,9 @@ def render_scenario(
     lead_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "lead")
     lead_mocap = int(model.body_mocapid[lead_body]) if lead_body >= 0 else -1
     t_frame = frame["t_s"].to_numpy(float)
+    # A frame's values from arrays: a pandas row per frame (frame.iloc) cost more than its annotation.
+    columns = {c: frame[c].to_numpy(float) for c in ("t_s", "vx_mps", "beta_rad", *(f"mu_{w}" for w in WHEELS))
+               if c in frame}
     n_q = min(qpos.shape[0], t_frame.size)
     (run_dir / "frames").mkdir(parents=True, exist_ok=True)
 
@@ -395,7 +399,7 @@ def render_scenario(
                 data.mocap_pos[lead_mocap, :2] = (lx, ly)
         mujoco.mj_forward(model, data)
         rgb = renderer.render(data, camera, size)
-        return annotate(rgb, frame.iloc[i], beta_est=beta_est, observer=observer, label=label)
+        return annotate(rgb, {c: v[i] for c, v in columns.items()}, beta_est=beta_est, observer=observer, label=label)
 
     import cv2
 
