@@ -288,7 +288,7 @@ def test_figures_read_one_state_of_a_wide_table_and_draw_what_the_long_frame_dra
     from roadtruth.harness.report.figures import observer_styles, state_figure
 
     run_dir = _wide_run(tmp_path, fmt)
-    monkeypatch.setattr(rundata, "WHOLE_CSV_BYTES", 0)  # as a long log's table: one state at a time
+    monkeypatch.setattr(rundata, "WHOLE_TABLE_BYTES", 0)  # as a long log's table: one state at a time
     reads: list[list[str] | None] = []
     real = rundata.read_table
 
@@ -349,8 +349,9 @@ def test_the_tables_of_a_page_do_not_filter_the_metrics_frame_per_row(run_dir: P
     assert selections == [], f"{len(selections)} filters of the metrics frame"
 
 
+@pytest.mark.parametrize("at_once", [False, True])
 @pytest.mark.parametrize("kind", ["float", "int", "text", "missing"])
-def test_parquet_state_columns_are_read_as_the_whole_table_reads_them(tmp_path: Path, kind: str):
+def test_parquet_state_columns_are_read_as_the_whole_table_reads_them(tmp_path: Path, kind: str, at_once: bool):
     """A Parquet estimates table's columns come back (one at a time) as float arrays equal to the
     whole table's columns, in the order asked; a text column gives None (the caller then names
     it), a column the file lacks is a ValueError (the report's "unreadable Parquet")."""
@@ -372,9 +373,9 @@ def test_parquet_state_columns_are_read_as_the_whole_table_reads_them(tmp_path: 
              "text": ["t_s", "a.beta_rad_var"], "missing": ["t_s", "b.beta_rad"]}[kind]
     if kind == "missing":
         with pytest.raises(ValueError, match="b.beta_rad"):
-            read_numeric_columns(path, asked)
+            read_numeric_columns(path, asked, at_once=at_once)
         return
-    got = read_numeric_columns(path, asked)
+    got = read_numeric_columns(path, asked, at_once=at_once)
     if kind == "text":
         assert got is None
         return
@@ -383,3 +384,32 @@ def test_parquet_state_columns_are_read_as_the_whole_table_reads_them(tmp_path: 
     for c in asked:
         assert got[c].dtype == np.float64
         np.testing.assert_array_equal(got[c], whole[c].to_numpy(float))
+
+
+@pytest.mark.parametrize("fmt", ["csv", "parquet"])
+def test_a_small_wide_table_is_read_once_per_scenario_and_draws_the_same_page(
+        tmp_path: Path, fmt: str, monkeypatch: pytest.MonkeyPatch):
+    """A default-suite sized estimates table (CSV or Parquet) is read once for all of a scenario's
+    figures (Parquet column by column cost ~1 ms a column, thousands of them on a page), and the
+    page is the same, byte for byte, as when each figure reads its own state's columns."""
+    import roadtruth.harness.report.rundata as rundata
+
+    run_dir = _wide_run(tmp_path, fmt)
+    reads: list[str] = []
+    real_table, real_numeric = rundata.read_table, rundata.read_numeric_columns
+
+    def recording_table(path, columns=None, **options):
+        if Path(path).stem == "estimates" and not options:
+            reads.append(Path(path).parent.name)
+        return real_table(path, columns=columns, **options)
+
+    def recording_numeric(path, columns, **options):
+        reads.append(Path(path).parent.name)
+        return real_numeric(path, columns, **options)
+
+    monkeypatch.setattr(rundata, "read_table", recording_table)
+    monkeypatch.setattr(rundata, "read_numeric_columns", recording_numeric)
+    whole = ReportBuilder(RunData.load(run_dir)).build()
+    assert sorted(reads) == ["ice_patch", "step_steer"]
+    monkeypatch.setattr(rundata, "WHOLE_TABLE_BYTES", 0)
+    assert ReportBuilder(RunData.load(run_dir)).build() == whole

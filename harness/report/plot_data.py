@@ -174,21 +174,23 @@ def read_varint_text(text: str) -> np.ndarray:
 
 def _deltas(k: np.ndarray, missing: np.ndarray) -> dict[str, Any]:
     """The difference form of integers ``k`` (missing samples hold the previous value: delta 0)."""
-    if missing.any():
+    gaps = bool(missing.any())
+    if gaps:
         filled = np.where(missing, 0, k)
         last = np.maximum.accumulate(np.where(missing, -1, np.arange(k.size)))
         k = np.where(last >= 0, filled[np.maximum(last, 0)], 0)
     out: dict[str, Any] = {"dk": ""}
     if k.size:
-        d1 = np.diff(k)
-        d2 = np.diff(d1, prepend=np.int64(0))
+        d1 = k[1:] - k[:-1]
+        d2 = d1.copy()  # the changes of step, the first step itself first
+        d2[1:] -= d1[:-1]
         # A smooth line's steps change little: their own differences are shorter to write
         # (compared by size, not written twice: the sum of magnitudes follows the text's length).
         if np.abs(d2).sum() < np.abs(d1).sum():
             out = {"k0": int(k[0]), "dk": varint_text(d2), "order": 2}
         else:
             out = {"k0": int(k[0]), "dk": varint_text(d1)}
-    runs = _gap_runs(missing)
+    runs = _gap_runs(missing) if gaps else []
     if runs:
         out["nan"] = runs
     return out

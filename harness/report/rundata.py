@@ -48,10 +48,13 @@ RESERVED_FOLDERS: tuple[str, ...] = ("frames", "videos")
 MAX_FOLDER_NAME = 100
 #: Largest JSON file of a run folder read [bytes] (a run.json of a 144-case sweep is ~1 MB).
 MAX_JSON_BYTES = 64_000_000
-#: A wide CSV estimates table up to this size [bytes] is parsed once for all of a scenario's figures
-#: (its numbers take about as much memory as the file); a larger one (a long log) one state's
-#: columns at a time, as a CSV parser reads the whole file for any of its columns.
-WHOLE_CSV_BYTES = 32_000_000
+#: A wide estimates table up to this size [bytes] is read once for all of a scenario's figures: a
+#: CSV file of at most this size (its numbers take about as much memory as the file), a Parquet
+#: table whose numbers (rows x columns x 8 bytes) take at most this. A larger one (a long log) is
+#: read one state's columns at a time (a CSV parser reads the whole file for any of its columns;
+#: Parquet reads only those columns, but column by column costs ~1 ms a column, which a
+#: default-suite page of 96 figures felt).
+WHOLE_TABLE_BYTES = 32_000_000
 
 
 def inside_folder(root: Path, path: Path, *, source: str | None = None) -> Path:
@@ -308,28 +311,42 @@ class ScenarioFiles:
             return []
         if self._is_long():
             return observer_series(estimates_long(self._long_table, states=[state], categorical=True), state)
-        if self._whole_csv is not None:
-            whole = self._whole_csv
-            return wide_series({"t_s": whole["t_s"], **{c: whole[c] for c in self._whole_csv_states.get(state, [])}},
+        whole = self._whole_table
+        if whole is not None:
+            return wide_series({"t_s": whole["t_s"], **{c: whole[c] for c in self._whole_table_states.get(state, [])}},
                                state)
         return wide_series(self._state_columns(state_columns(header, [state])), state)
 
     @cached_property
-    def _whole_csv_states(self) -> dict[str, list[str]]:
-        """state -> the estimate columns (values, bounds, variances) of that state in the whole CSV
+    def _whole_table_states(self) -> dict[str, list[str]]:
+        """state -> the estimate columns (values, bounds, variances) of that state in the whole
         table, grouped once (not once per figure)."""
         out: dict[str, list[str]] = {}
-        for (_, state), cols in estimate_columns(list(self._whole_csv or {})).items():
+        for (_, state), cols in estimate_columns(list(self._whole_table or {})).items():
             out.setdefault(state, []).extend(cols.values())
         return out
 
     @cached_property
-    def _whole_csv(self) -> dict[str, np.ndarray] | None:
-        """Every column of a wide CSV estimates table of at most ``WHOLE_CSV_BYTES``, parsed once
-        (with ``_table``'s checks), or None for Parquet and larger files."""
+    def _whole_table(self) -> dict[str, np.ndarray] | None:
+        """Every column of a wide estimates table of at most ``WHOLE_TABLE_BYTES`` as float arrays,
+        read once (CSV with ``_table``'s checks), or None for a larger table, and for a Parquet
+        table with a column that does not hold numbers (each figure's own read then names it)."""
         found = table_path(self.folder, "estimates")
         path = self._path(found.name) if found is not None else None
-        if path is None or format_of(path) != "csv" or path.stat().st_size > WHOLE_CSV_BYTES:
+        if path is None or "t_s" not in (self._estimates_header or []):
+            return None
+        if format_of(path) == "parquet":
+            import pyarrow.parquet as pq
+
+            try:
+                meta = pq.ParquetFile(path).metadata
+                if meta.num_rows * meta.num_columns * 8 > WHOLE_TABLE_BYTES:
+                    return None
+                return read_numeric_columns(path, self._estimates_header or [], at_once=True)
+            except (ValueError, OSError) as e:
+                first = str(e).splitlines()[0] if str(e) else type(e).__name__
+                raise RunFolderError(f"unreadable Parquet ({first})", source=str(path)) from None
+        if path.stat().st_size > WHOLE_TABLE_BYTES:
             return None
         frame = self._table("estimates", required=("t_s",))
         # One conversion of the frame's float block: each column is then a contiguous row of it.
@@ -363,13 +380,14 @@ class ScenarioFiles:
         return self._json("scenario.json", {})
 
 
-def read_numeric_columns(path: Path, columns: Sequence[str]) -> dict[str, np.ndarray] | None:
+def read_numeric_columns(path: Path, columns: Sequence[str], *, at_once: bool = False) -> dict[str, np.ndarray] | None:
     """``columns`` of a Parquet table as float64 numpy arrays in ``columns`` order, or None if one of
     them does not hold numbers (the caller then reads it as a frame and says which).
 
     Read one column at a time on one thread and copied out of pyarrow's memory pool: decoding one
     state's 45 columns of a 550 s log at once grew the process by 4-5 times their 19 MB (buffers
     the pool keeps after the read); column by column it grows by about the data itself.
+    ``at_once`` reads them in one call instead (faster for a small table, where memory is no issue).
     """
     import pyarrow as pa
     import pyarrow.parquet as pq
@@ -383,8 +401,14 @@ def read_numeric_columns(path: Path, columns: Sequence[str]) -> dict[str, np.nda
         if not (pa.types.is_floating(kind) or pa.types.is_integer(kind)):
             return None
     out = {}
-    for name in columns:
-        out[str(name)] = np.array(file.read(columns=[name], use_threads=False).column(0).to_numpy(), dtype=float)
+    if at_once:
+        table = file.read(columns=list(columns))
+        for name in columns:
+            out[str(name)] = np.array(table.column(name).to_numpy(), dtype=float)
+        del table
+    else:
+        for name in columns:
+            out[str(name)] = np.array(file.read(columns=[name], use_threads=False).column(0).to_numpy(), dtype=float)
     pa.default_memory_pool().release_unused()
     return out
 
