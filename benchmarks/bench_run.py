@@ -58,7 +58,7 @@ def render_options() -> dict[str, object]:
     chosen = RenderSettings()
     before = replace(chosen, video_size=(640, 480), x264_preset="veryfast", x264_crf=27)
     return {
-        "before: video 640x480, x264 veryfast crf 27": before,
+        "reference: video 640x480, x264 veryfast crf 27 (the settings before)": before,
         "video 640x480, ultrafast crf 30": replace(before, x264_preset="ultrafast", x264_crf=30),
         "video 480x360, veryfast crf 27": replace(before, video_size=(480, 360)),
         f"chosen: video {chosen.video_size[0]}x{chosen.video_size[1]}, {chosen.x264_preset} crf {chosen.x264_crf}": chosen,
@@ -142,7 +142,7 @@ def render_sizes(scenario: str = "mu_step", repeats: int = 2) -> None:
           f"ratios to '{ref_label}':")
     for label, (own, enc, n, n_keys, png, mp4) in best.items():
         n_video = max(n - n_keys, 1)
-        print(f"  {label:<45} {n_keys} key + {n_video} video frames: render {own / n * 1e3:5.1f} ms/frame, "
+        print(f"  {label:<66} {n_keys} key + {n_video} video frames: render {own / n * 1e3:5.1f} ms/frame, "
               f"encoder {enc / n_video * 1e3:4.1f} ms/video frame; scenario {own + enc:5.2f} s CPU "
               f"({(own + enc) / (ref_own + ref_enc):.2f}x; render {own / ref_own:.2f}x, encoder "
               f"{enc / max(ref_enc, 1e-9):.2f}x); PNG {png / 1e3:.0f} kB, MP4 {mp4 / 1e3:.0f} kB")
