@@ -90,10 +90,11 @@ def test_rebuild_uses_saved_files_only_and_reflects_them(run_dir: Path):
 def test_rebuild_is_atomic(run_dir: Path, monkeypatch: pytest.MonkeyPatch):
     first = build_report(run_dir).read_text(encoding="utf-8")
 
-    def boom(self: ReportBuilder) -> str:
+    def boom(self: ReportBuilder):
+        yield "<!doctype html><html><body>half a page"  # written to the temporary file already
         raise RuntimeError("section failed half-way")
 
-    monkeypatch.setattr(ReportBuilder, "build", boom)
+    monkeypatch.setattr(ReportBuilder, "pieces", boom)
     with pytest.raises(RuntimeError):
         build_report(run_dir)
     assert (run_dir / "index.html").read_text(encoding="utf-8") == first
