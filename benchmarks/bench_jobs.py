@@ -20,6 +20,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import bench_env
+
 ROOT = Path(__file__).resolve().parents[1]
 #: The source tree the commands run from (``--root``: e.g. an older checkout, for a before/after).
 ROOT_DIR = [ROOT]
@@ -36,6 +38,7 @@ def run_once(jobs: int, suite: str, out: Path) -> float:
 
 
 def main() -> None:
+    bench_env.with_bytecode()
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--repeats", type=int, default=3, help="measured runs per job count (default 3)")
     p.add_argument("--suite", default="default", help="scenario suite (default: default)")

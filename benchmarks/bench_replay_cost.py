@@ -43,6 +43,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import bench_env
+
 REVS_LOG = (Path(__file__).resolve().parents[1].parent / "shared" / "data" / "revs-250lm"
             / "revs_250lm_2014-02-22.csv.gz")
 
@@ -290,6 +292,7 @@ def print_stages(fmt: str, observers: str | None, jobs: int | None, source: Path
 
 
 def main() -> None:
+    bench_env.with_bytecode()
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--format", default="csv,parquet",
                     help="comma-separated output formats to measure; 'none' = the command without --format")

@@ -28,6 +28,7 @@ import statistics
 import time
 from collections.abc import Sequence
 
+import bench_env
 import numpy as np
 
 from roadtruth.harness.errors import ScenarioError
@@ -81,6 +82,7 @@ def _report(unit: str, sizes: Sequence[float], times: dict[float, list[float]]) 
 
 
 def main() -> None:
+    bench_env.with_bytecode()
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--durations", type=_floats, default=[5.0, 20.0, 80.0, 320.0], help="simulated seconds")
     ap.add_argument("--observers", type=_ints, default=[1, 2, 4, 8, 16], help="observer counts")

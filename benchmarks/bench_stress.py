@@ -23,6 +23,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import bench_env
+
 ROOT = Path(__file__).resolve().parents[1]
 #: The source tree the commands run from (``--root``: e.g. an older checkout, for a before/after).
 ROOT_DIR = [ROOT]
@@ -41,6 +43,7 @@ def sweep_once(label: str, extra: list[str], seeds: int, out: Path) -> float:
 
 
 def main() -> None:
+    bench_env.with_bytecode()
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--repeats", type=int, default=3, help="measured sweeps per executor (default 3)")
     p.add_argument("--seeds", type=int, default=12, help="seeds per (friction, faults): 8 x this cases (default 12)")
