@@ -109,9 +109,18 @@ def test_default_budget_scales_with_the_duration_and_bad_budgets_are_input_error
         run_observers(_frame(), SEDAN, ["plugin_hang", GOOD], options={GOOD: {"typo": 1}}, timeout_s=1.0)
 
 
+def _is_host(pid: int) -> bool:
+    """An observer host, forked or a fresh interpreter: both name themselves (``/proc/PID/comm``)."""
+    try:
+        with open(f"/proc/{pid}/comm") as f:
+            return f.read().strip() == observer_host.HOST_PROCESS_NAME
+    except OSError:
+        return False
+
+
 def _host_pids() -> set[int]:
     me = os.getpid()
-    return {pid for pid, (ppid, cmd) in _processes().items() if ppid == me and "roadtruth.harness.evaluation.observer_host" in cmd}
+    return {pid for pid, (ppid, _) in _processes().items() if ppid == me and _is_host(pid)}
 
 
 def test_ctrl_c_still_stops_the_run_and_takes_the_observer_process_with_it(plugins) -> None:
@@ -263,8 +272,8 @@ def test_a_crashed_scenario_worker_costs_only_its_scenario(tmp_path: Path, plugi
                 return None
             procs = _processes()
             group = _group(proc.pid)
-            for pid, (ppid, cmd) in procs.items():
-                if pid in group and "roadtruth.harness.evaluation.observer_host" in cmd and ppid != proc.pid:
+            for pid, (ppid, _) in procs.items():
+                if pid in group and _is_host(pid) and ppid != proc.pid:
                     return ppid
             return None
 

@@ -22,11 +22,21 @@ in the background while the scenario is being simulated, so its imports overlap 
 only per-observer cost is pickling the inputs and the track (about a millisecond). Timing is
 unchanged: ``us_per_step`` is measured in the host around ``run()`` alone.
 
-Why ``subprocess`` and not ``multiprocessing``: scenario workers of a Dask cluster are daemonic
-processes, and multiprocessing refuses to start children of daemonic processes. The host is
-``python -m roadtruth.harness.evaluation.observer_host`` with two inherited pipe descriptors carrying length-prefixed
-pickles (``multiprocessing.connection.Connection`` framing); stdin is closed and stdout/stderr are
-the caller's, so an observer's prints still show but cannot corrupt the protocol.
+How a host starts. A fresh interpreter costs 1.5-2 s of CPU in imports plus 0.8-1.2 s of numba's
+one-time target set-up; on two cores, with a worker and a host per core, that was most of what
+``--jobs 2`` lost. So when :func:`fork_is_safe` (Linux, the main thread, every other thread a
+daemon, no OpenGL context ever made here) the host is ``os.fork()``-ed from the caller: a scenario
+worker forked from the preloaded forkserver (:mod:`roadtruth.harness.jobs.forkserver_preload`) already
+holds every import, numba set up and its imports frozen, so its host is ready in milliseconds. The
+forked child keeps only stdout, stderr and its two pipes, never returns into the caller's code and
+ends with ``os._exit`` (the caller's ``atexit`` handlers are the caller's). Otherwise the host is
+``python -m roadtruth.harness.evaluation.observer_host`` (``subprocess``, not ``multiprocessing``: workers of
+a Dask cluster are daemonic, and multiprocessing refuses children of daemonic processes), which
+imports every observer and sets numba up *before* it says it is ready, so that cost overlaps the
+caller's simulation instead of landing in the first observer's request. Either way the pipes carry
+length-prefixed pickles (``multiprocessing.connection.Connection`` framing); stdin is closed and
+stdout/stderr are the caller's, so an observer's prints still show but cannot corrupt the protocol,
+and the host names itself ``roadtruth-host`` (``/proc/PID/comm``).
 
 The host ignores SIGINT (Ctrl-C raises ``KeyboardInterrupt`` in the caller, which kills the host),
 and dies with its parent (``roadtruth.harness.jobs.worker_pool.exit_with``). An observer class that cannot be
@@ -57,6 +67,7 @@ from typing import Any
 
 import numpy as np
 
+from roadtruth.harness.evaluation.host_fork import ForkedProcess, fork_child, fork_is_safe, name_process
 from roadtruth.harness.jobs.worker_pool import exit_reason
 
 #: How long a new host may take to import numpy, numba, cvxpy and the observers [s].
@@ -204,26 +215,32 @@ def run_request(req: ObserverRequest, *, in_process: bool = False) -> ObserverRe
     return ObserverReply(track, seconds, certified, reason, status)
 
 
-def main(argv: Sequence[str]) -> int:
-    """Host process: ``python -m roadtruth.harness.evaluation.observer_host REQUEST_FD REPLY_FD PARENT_PID DEATH_SIGNAL``."""
+#: The name a host process goes by (``/proc/PID/comm``, ``ps -o comm``), whichever way it started.
+HOST_PROCESS_NAME = "roadtruth-host"
+
+
+def serve(requests: Connection, replies: Connection, parent_pid: int, death_signal: bool, *, forked: bool) -> int:
+    """The host's life: get ready, then answer requests until the caller closes the request pipe.
+
+    ``forked``: this process was forked from the caller (which may have imported and warmed
+    everything already) rather than started as a fresh interpreter.
+    """
+    from roadtruth.harness.jobs.warm_start import import_observers, set_up_numba
     from roadtruth.harness.jobs.worker_pool import exit_with
 
-    request_fd, reply_fd, parent_pid, death_signal = (int(a) for a in argv)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the caller's: it kills this process
-    exit_with(parent_pid, parent_pid, death_signal=bool(death_signal))
-    requests = Connection(request_fd, writable=False)
-    replies = Connection(reply_fd, readable=False)
-    import warnings
-
-    with warnings.catch_warnings():  # the caller has already reported any plug-in that fails to load
-        warnings.simplefilter("ignore")
-        from roadtruth.observers.registry import available_observers
-
-        available_observers()  # numpy, numba kernels, cvxpy and every observer, imported once
+    name_process(HOST_PROCESS_NAME)
+    exit_with(parent_pid, parent_pid, death_signal=death_signal)
+    import_observers()  # numpy, numba kernels, cvxpy and every observer, imported once (if not yet)
+    # numba's one-time target set-up (0.8-1.2 s) now, before "ready", while the caller still
+    # simulates: otherwise it lands in the first observer's request.
+    set_up_numba()
     # The imports leave some millions of objects that every full garbage collection would walk
     # again: 0.2-0.7 s, charged to whichever observer's timed run() it happens to fall in (a
-    # 5 µs/step loop measured 262 µs/step). Frozen, they are never walked again.
-    gc.collect()
+    # 5 µs/step loop measured 262 µs/step). Frozen, they are never walked again. A forked host
+    # skips the collection: it would write to every object the caller shares with it copy-on-write.
+    if not forked:
+        gc.collect()
     gc.freeze()
     replies.send(("ready", os.getpid()))
     while True:
@@ -236,6 +253,13 @@ def main(argv: Sequence[str]) -> int:
             replies.send(reply)
         except Exception as exc:  # noqa: BLE001 - an unpicklable track is that observer's error
             replies.send(ObserverReply.failed(f"estimates could not be sent back: {one_line(exc)}"))
+
+
+def main(argv: Sequence[str]) -> int:
+    """Host process: ``python -m roadtruth.harness.evaluation.observer_host REQUEST_FD REPLY_FD PARENT_PID DEATH_SIGNAL``."""
+    request_fd, reply_fd, parent_pid, death_signal = (int(a) for a in argv)
+    return serve(Connection(request_fd, writable=False), Connection(reply_fd, readable=False), parent_pid,
+                 bool(death_signal), forked=False)
 
 
 # ---- the caller's side -------------------------------------------------------------------------
@@ -258,18 +282,30 @@ def _child_pythonpath() -> str:
 
 
 class ObserverHost:
-    """One host process and its two pipes (caller's side)."""
+    """One host process and its two pipes (caller's side).
+
+    ``forked``: the host was forked from this process (:func:`fork_is_safe`), else it is a fresh
+    interpreter. ``process`` has the ``subprocess.Popen`` methods used here either way.
+    """
 
     def __init__(self) -> None:
         req_r, req_w = os.pipe()
         rep_r, rep_w = os.pipe()
         # The parent-death signal fires when the creating *thread* ends: arm it only from a main thread.
         death = int(threading.current_thread() is threading.main_thread())
-        env = {**os.environ, "PYTHONPATH": _child_pythonpath()}
+        parent = os.getpid()
+        self.forked = fork_is_safe()
         try:
-            self.process = subprocess.Popen(
-                [sys.executable, "-m", "roadtruth.harness.evaluation.observer_host", str(req_r), str(rep_w), str(os.getpid()), str(death)],
-                stdin=subprocess.DEVNULL, pass_fds=(req_r, rep_w), env=env, close_fds=True)
+            if self.forked:
+                self.process: subprocess.Popen | ForkedProcess = fork_child(
+                    lambda: serve(Connection(req_r, writable=False), Connection(rep_w, readable=False), parent,
+                                  bool(death), forked=True), keep_fds=(req_r, rep_w))
+            else:
+                env = {**os.environ, "PYTHONPATH": _child_pythonpath()}
+                self.process = subprocess.Popen(
+                    [sys.executable, "-m", "roadtruth.harness.evaluation.observer_host", str(req_r), str(rep_w),
+                     str(os.getpid()), str(death)],
+                    stdin=subprocess.DEVNULL, pass_fds=(req_r, rep_w), env=env, close_fds=True)
         finally:
             os.close(req_r)
             os.close(rep_w)

@@ -23,9 +23,13 @@ when the main process was killed with ``kill -9`` and had no chance to clean up:
 Workers ignore SIGINT: Ctrl-C is the main process's business (it raises ``KeyboardInterrupt`` there,
 the pool is killed on the way out and the run stops).
 
-Workers start from a fresh interpreter (forkserver on Linux, spawn elsewhere), never plain fork: a
-process that has made an OpenGL (EGL) context, e.g. a test session that rendered before, hangs its
-forked children when they render.
+Workers are never plain-forked from the caller: a process that has made an OpenGL (EGL) context,
+e.g. a test session that rendered before, hangs its forked children when they render. On Linux they
+fork from the multiprocessing forkserver, which before its first fork imports everything a worker
+needs and sets numba up (:mod:`roadtruth.harness.jobs.forkserver_preload`: imports, observers, numba's
+target context, ``gc.freeze``; 1.5-3 s of CPU paid once per run instead of once per worker). The
+forkserver only forks and never renders, so a worker may still make a GL context after its fork.
+Elsewhere workers spawn a fresh interpreter.
 """
 
 from __future__ import annotations
@@ -60,6 +64,48 @@ _PR_SET_PDEATHSIG = 1
 def start_method() -> str:
     """``forkserver`` on Linux, ``spawn`` elsewhere (never ``fork``, see the module docstring)."""
     return "forkserver" if sys.platform.startswith("linux") else "spawn"
+
+
+#: What the forkserver imports before its first fork: the caller's ``__main__`` (multiprocessing's
+#: default) and the module that warms it (:mod:`roadtruth.harness.jobs.forkserver_preload`).
+FORKSERVER_PRELOAD: tuple[str, ...] = ("__main__", "roadtruth.harness.jobs.forkserver_preload")
+
+
+#: Pools of this process that may still have workers (the forkserver is only restarted when none has).
+_live_pools = 0
+#: The start-up environment the running forkserver was started under (None: not started by a pool).
+_forkserver_started_under: tuple[object, ...] | None = None
+_forkserver_lock = threading.Lock()
+
+
+def worker_context() -> multiprocessing.context.BaseContext:
+    """The multiprocessing context of the pools; on Linux its forkserver preloads :data:`FORKSERVER_PRELOAD`.
+
+    The forkserver lives as long as the process and imports once, when it starts. If the start-up
+    environment has changed since (``PYTHONPATH``, ``NUMBA_*``, ``MUJOCO_GL``, see
+    ``warm_start.startup_environment``), its workers would not hold what a fresh interpreter imports
+    now; so it is restarted, but only when no pool of this process has workers (they are its
+    children and die with it).
+    """
+    global _forkserver_started_under
+    ctx = multiprocessing.get_context(start_method())
+    if start_method() != "forkserver":
+        return ctx
+    from multiprocessing import forkserver
+
+    from roadtruth.harness.jobs.warm_start import startup_environment
+
+    ctx.set_forkserver_preload(list(FORKSERVER_PRELOAD))
+    now = startup_environment()
+    server = forkserver._forkserver  # the process's one forkserver; _stop is its documented-for-tests stop
+    with _forkserver_lock:
+        running = server._forkserver_pid is not None
+        if running and _forkserver_started_under not in (None, now) and _live_pools == 0:
+            server._stop()
+            running = False
+        if not running:
+            _forkserver_started_under = now
+    return ctx
 
 
 class WorkerCrashed(Exception):
@@ -207,7 +253,11 @@ class WorkerPool(Generic[T, R]):
         self._fn = fn
         self._size = int(workers)
         self._what = what
-        self._ctx = multiprocessing.get_context(start_method())
+        global _live_pools
+        self._ctx = worker_context()
+        with _forkserver_lock:
+            _live_pools += 1
+        self._counted = True
         self._lock = threading.Lock()
         self._queue: deque[tuple[Future, Any]] = deque()
         self._workers: list[_Worker] = []
@@ -251,6 +301,7 @@ class WorkerPool(Generic[T, R]):
         except BaseException:  # Ctrl-C while waiting: the workers must not outlive the run
             self.kill()
             raise
+        self._uncount()
 
     def kill(self) -> None:
         """Stop now: kill the workers, cancel what has not started."""
@@ -265,6 +316,14 @@ class WorkerPool(Generic[T, R]):
         for fut, _ in queued:
             fut.cancel()
         self._thread.join(timeout=EXIT_GRACE_S)
+        self._uncount()
+
+    def _uncount(self) -> None:
+        global _live_pools
+        with _forkserver_lock:
+            if self._counted:
+                self._counted = False
+                _live_pools -= 1
 
     def __enter__(self) -> WorkerPool[T, R]:
         return self

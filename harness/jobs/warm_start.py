@@ -1,0 +1,97 @@
+"""What a process that runs scenarios or observers pays once, done ahead so its children inherit it.
+
+A worker or observer host started from a fresh interpreter imports numpy, pandas, MuJoCo, numba, cvxpy,
+every observer and the harness (1.5-2 s of CPU), and the first numba kernel it calls sets up numba's
+target context (another 0.8-1.2 s, even when every kernel comes from the on-disk cache). On two
+cores, with a worker and an observer host per core, that start-up is most of what ``--jobs 2`` loses.
+So it is paid once, in a process that only forks children:
+
+* the multiprocessing forkserver of the worker pools imports :mod:`roadtruth.harness.jobs.forkserver_preload`
+  (which calls :func:`warm_process`) before it forks any worker, so workers start with all of it done;
+* an observer host is forked from the process that asks for it when that is safe (see
+  :func:`roadtruth.harness.evaluation.observer_host.fork_is_safe`), so a worker's host inherits the same.
+
+Nothing here creates an OpenGL context (a process that made one hangs its forked children when they
+render): MuJoCo is imported, never rendered with.
+"""
+
+from __future__ import annotations
+
+import gc
+import importlib
+import os
+import sys
+import warnings
+
+#: Modules a scenario or sweep worker and an observer host import (the costly part of their start-up).
+HEAVY_MODULES: tuple[str, ...] = (
+    "numpy", "pandas", "mujoco", "numba", "cvxpy",
+    "roadtruth.harness.jobs.pipeline", "roadtruth.harness.jobs.stress",
+    "roadtruth.harness.truth.simulate", "roadtruth.harness.sensors.emulate",
+    "roadtruth.harness.evaluation.estimate", "roadtruth.harness.evaluation.scoring",
+    "roadtruth.harness.evaluation.observer_host", "roadtruth.observers.registry",
+)
+
+
+#: Environment variables read while a process starts or imports (the site module, numba, MuJoCo).
+_STARTUP_PREFIXES = ("PYTHON", "NUMBA_", "MUJOCO_")
+
+
+def startup_environment() -> tuple[object, ...]:
+    """What a fresh interpreter's imports depend on besides the files: the interpreter and the
+    ``PYTHON*``, ``NUMBA_*``, ``MUJOCO_*`` variables (e.g. a ``PYTHONPATH`` with a ``sitecustomize``).
+
+    A process warmed under one start-up environment and forked after it changed would give its child
+    what it imported then, not what a fresh interpreter would import now; callers compare this.
+    """
+    return (sys.executable, tuple(sorted((k, v) for k, v in os.environ.items() if k.startswith(_STARTUP_PREFIXES))))
+
+
+def _one_more(x: float) -> float:
+    return x + 1.0
+
+
+#: ``_one_more`` compiled (on first use: importing this module must not import numba).
+_compiled: list = []
+
+
+def set_up_numba() -> None:
+    """Call one tiny cached kernel: numba sets up its target context (the registries of every
+    supported numpy function, 0.8-1.2 s) on the first call of any kernel in a process, cached or not."""
+    if not _compiled:
+        from numba import njit
+
+        _compiled.append(njit(cache=True)(_one_more))
+    _compiled[0](1.0)
+
+
+def import_observers() -> None:
+    """Import every observer, plug-ins included (the caller reports any plug-in that fails to load)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        from roadtruth.observers.registry import available_observers
+
+        available_observers()
+
+
+def warm_process(*, freeze: bool = True) -> None:
+    """Import :data:`HEAVY_MODULES` and every observer, set numba up, then (``freeze``) move what the
+    imports left out of garbage collection's reach (``gc.freeze``: children inherit it, and a full
+    collection, 0.2-0.7 s over those millions of objects, never walks them again).
+
+    A module that fails to import is skipped: the worker that needs it imports it again and reports
+    the failure where it belongs, with its task.
+    """
+    for name in HEAVY_MODULES:
+        try:
+            importlib.import_module(name)
+        except Exception:  # noqa: BLE001, S112 - reported by the task that needs the module
+            continue
+    try:
+        import_observers()
+    except Exception:  # noqa: BLE001 - as above: the observer's own request reports it
+        pass
+    set_up_numba()
+    if freeze:
+        gc.collect()
+        gc.freeze()

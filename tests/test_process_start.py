@@ -1,0 +1,124 @@
+"""Process start-up is paid once: workers fork from a warmed forkserver, observer hosts fork from a
+warmed caller when that is safe, and a forked host keeps every guarantee of a fresh-interpreter host.
+
+The host checks run in a fresh interpreter (``_script``), so whether forking is safe does not depend on
+what other tests of this session did (a session that rendered has a GL context and must not fork).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+import worker_tasks
+
+from roadtruth.harness.jobs.worker_pool import WorkerPool
+
+TESTS = Path(__file__).resolve().parent
+LINUX = sys.platform.startswith("linux")
+pytestmark = [pytest.mark.usefixtures("isolated_design_cache"),
+              pytest.mark.skipif(not LINUX, reason="forkserver, fork and /proc are Linux's")]
+
+
+def _script(body: str, timeout_s: float = 240.0) -> dict:
+    """Run ``body`` in a fresh interpreter (tests folder on the path); it prints one JSON line last."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (str(TESTS), os.environ.get("PYTHONPATH", "")) if p),
+           "MUJOCO_GL": "egl"}
+    out = subprocess.run([sys.executable, "-c", textwrap.dedent(body)], env=env, capture_output=True, text=True,
+                         timeout=timeout_s)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_a_worker_starts_with_the_imports_numba_and_frozen_objects_of_the_forkserver() -> None:
+    # worker_tasks imports nothing heavy: whatever the worker holds before its first task, it forked with
+    with WorkerPool(worker_tasks.process_state, 1) as pool:
+        state = pool.submit(0).result(timeout=300)
+    assert state["modules"] == sorted(["mujoco", "pandas", "cvxpy", "roadtruth.observers.registry",
+                                       "roadtruth.harness.jobs.pipeline"])
+    assert state["numba_registries"] > 0
+    assert state["frozen"] > 10_000
+
+
+HOST_GUARANTEES = """
+    import json, os, sys, threading, time
+    import numpy as np
+    import pandas as pd
+    import plugin_observers
+    from roadtruth.harness.evaluation import observer_host
+    from roadtruth.harness.evaluation.estimate import run_observers
+    from roadtruth.harness.truth.vehicle import load_vehicle
+    from roadtruth.observers import registry
+
+    for cls in (*plugin_observers.MISBEHAVING, plugin_observers.ReportsFrozenObjects):
+        registry.register(cls)
+    n = 400
+    t = np.arange(n) * 0.01
+    r = 0.03 * np.sin(2 * np.pi * 0.4 * t)
+    frame = pd.DataFrame({"t_s": t, "vx_mps": 15.0, "yaw_rate_radps": r, "ay_mps2": 15.0 * r, "imu_valid": 1,
+                          "delta_rad": 0.1 * r, "steering_valid": 1})
+    sedan = load_vehicle("sedan")
+    out = {"safe": observer_host.fork_is_safe()}
+    observer_host.prestart()
+    host = observer_host._idle[-1]
+    host.wait_ready(300)
+    out["forked"] = host.forked
+    out["parent"] = os.getpid()
+    with open(f"/proc/{host.process.pid}/stat", "rb") as f:
+        out["host_parent"] = int(f.read().rsplit(b")", 1)[1].split()[1])
+    with open(f"/proc/{host.process.pid}/comm") as f:
+        out["host_name"] = f.read().strip()
+    bad = [c.name for c in plugin_observers.MISBEHAVING if c.name != "plugin_hang"]
+    _, hang = run_observers(frame, sedan, ["plugin_hang"], timeout_s=2.0)
+    est, runs = run_observers(frame, sedan, [*bad, "plugin_gc_probe", "open_loop_bicycle"])
+    out["status"] = {k: v.status for k, v in {**hang, **runs}.items()}
+    out["frozen"] = float(est[est.observer == "plugin_gc_probe"]["value"].min())
+    # a non-daemon thread, then a GL context: from here on hosts start as fresh interpreters
+    stop = threading.Event()
+    th = threading.Thread(target=stop.wait)
+    th.start()
+    out["safe_with_thread"] = observer_host.fork_is_safe()
+    stop.set()
+    th.join()
+    # a changed start-up environment: a fresh interpreter would import something else than this process holds
+    os.environ["PYTHONPATH"] = os.environ.get("PYTHONPATH", "") + os.pathsep + "/nonexistent-site"
+    out["safe_with_new_pythonpath"] = observer_host.fork_is_safe()
+    os.environ["PYTHONPATH"] = os.environ["PYTHONPATH"].rsplit(os.pathsep, 1)[0]
+    out["safe_again"] = observer_host.fork_is_safe()
+    import mujoco
+    model = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom size="1"/></worldbody></mujoco>')
+    renderer = mujoco.Renderer(model, 32, 32)
+    renderer.update_scene(mujoco.MjData(model))
+    renderer.render()
+    out["safe_after_gl"] = observer_host.fork_is_safe()
+    fresh = observer_host.ObserverHost()
+    fresh.wait_ready(300)
+    out["fresh_forked"] = fresh.forked
+    fresh.close()
+    print(json.dumps(out))
+"""
+
+
+def test_a_forked_host_keeps_every_guarantee_and_hosts_fork_only_when_safe() -> None:
+    got = _script(HOST_GUARANTEES)
+    assert got["safe"] and got["forked"]
+    assert got["host_parent"] == got["parent"]  # the caller's child: it dies with the caller
+    assert got["host_name"] == "roadtruth-host"
+    assert got["status"] == {
+        "plugin_input_error": "error: InputError: plugin: plug-in refused its input at run time",
+        "plugin_design_error": "error: RuntimeError: design exploded",
+        "plugin_sys_exit": "error: SystemExit: 3",
+        "plugin_segfault": "error: observer process crashed (signal 11)",
+        "plugin_hang": "error: timed out after 2 s",
+        "plugin_gc_probe": "diverged",  # ran: its "yaw rate" is the frozen-object count
+        "open_loop_bicycle": "ok",
+    }
+    assert got["frozen"] > 10_000  # the forked host froze what it inherited out of garbage collection
+    assert not got["safe_with_thread"]
+    assert not got["safe_with_new_pythonpath"] and got["safe_again"]
+    assert not got["safe_after_gl"] and not got["fresh_forked"]
