@@ -26,6 +26,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import bench_env
+
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 
@@ -173,6 +175,7 @@ def cold_start(jobs: int, render: bool) -> None:
 
 
 def main() -> None:
+    bench_env.with_bytecode()
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--jobs", type=int, default=1)
     p.add_argument("--repeat", type=int, default=2, help="runs (the first may include compilation)")
