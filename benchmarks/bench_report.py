@@ -35,6 +35,8 @@ import sys
 import time
 from pathlib import Path
 
+import bench_env
+
 #: The child's program: imports, then one or more builds, printing one JSON line of figures.
 _CHILD = r"""
 import json, os, sys, time
@@ -113,6 +115,7 @@ def numpy_baseline(repeat: int) -> list[float]:
 
 
 def main() -> None:
+    bench_env.with_bytecode()  # children inherit it: measured as an installed package runs
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("folders", nargs="+", type=Path, help="run folders (each holds run.json and metrics)")
     ap.add_argument("--repeat", type=int, default=3, help="fresh processes, and warm calls in one (default 3)")
