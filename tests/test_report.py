@@ -414,3 +414,29 @@ def test_a_small_wide_table_is_read_once_per_scenario_and_draws_the_same_page(
     assert sorted(reads) == ["ice_patch", "step_steer"]
     monkeypatch.setattr(rundata, "WHOLE_TABLE_BYTES", 0)
     assert ReportBuilder(RunData.load(run_dir)).build() == whole
+
+
+def test_rebuilding_a_report_does_not_import_the_observers_and_styles_them_as_run_does(run_dir: Path):
+    """``roadtruth report`` takes the observers' names (their line styles) from the remembered
+    listing, not by importing every observer module with numba and cvxpy; the styles are those of
+    the registry, which ``run`` and ``replay`` have loaded."""
+    import subprocess
+    import sys
+
+    from roadtruth.harness.evaluation.observer_catalog import observer_rows
+    from roadtruth.harness.report.styles import registry_names
+    from roadtruth.observers.registry import available_observers
+
+    observer_rows()  # the listing is remembered (as after any earlier `roadtruth observers` or report)
+    probe = (
+        "import sys\n"
+        "from pathlib import Path\n"
+        "from roadtruth.harness.report import build_report\n"
+        "from roadtruth.harness.report.styles import registry_names\n"
+        f"build_report(Path({str(run_dir)!r}))\n"
+        "reg = sys.modules.get('roadtruth.observers.registry')\n"
+        "print(bool(reg and reg._loaded), 'numba' in sys.modules, ','.join(registry_names()))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout.split()
+    assert out[0] == "False" and out[1] == "False"
+    assert out[2].split(",") == list(available_observers()) == list(registry_names())
