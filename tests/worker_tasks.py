@@ -23,7 +23,7 @@ def process_state(_: object) -> dict[str, object]:
     import gc
     import sys
 
-    state: dict[str, object] = {"modules": sorted(m for m in ("mujoco", "pandas", "cvxpy", "roadtruth.observers.registry",
+    state: dict[str, object] = {"modules": sorted(m for m in ("mujoco", "pandas", "roadtruth.observers.registry",
                                                                  "roadtruth.harness.jobs.pipeline") if m in sys.modules),
                                 "frozen": gc.get_freeze_count(), "numba_registries": 0}
     if "numba" in sys.modules:

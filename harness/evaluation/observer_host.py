@@ -231,7 +231,7 @@ def serve(requests: Connection, replies: Connection, parent_pid: int, death_sign
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the caller's: it kills this process
     name_process(HOST_PROCESS_NAME)
     exit_with(parent_pid, parent_pid, death_signal=death_signal)
-    import_observers()  # numpy, numba kernels, cvxpy and every observer, imported once (if not yet)
+    import_observers()  # numpy, numba kernels and every observer, imported once (if not yet)
     # numba's one-time target set-up (0.8-1.2 s) now, before "ready", while the caller still
     # simulates: otherwise it lands in the first observer's request.
     set_up_numba()

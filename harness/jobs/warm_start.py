@@ -1,6 +1,6 @@
 """What a process that runs scenarios or observers pays once, done ahead so its children inherit it.
 
-A worker or observer host started from a fresh interpreter imports numpy, pandas, MuJoCo, numba, cvxpy,
+A worker or observer host started from a fresh interpreter imports numpy, pandas, MuJoCo, numba,
 every observer and the harness (1.5-2 s of CPU), and the first numba kernel it calls sets up numba's
 target context (another 0.8-1.2 s, even when every kernel comes from the on-disk cache). On two
 cores, with a worker and an observer host per core, that start-up is most of what ``--jobs 2`` loses.
@@ -9,7 +9,7 @@ So it is paid once, in a process that only forks children:
 * the multiprocessing forkserver of the worker pools imports :mod:`roadtruth.harness.jobs.forkserver_preload`
   (which calls :func:`warm_process`) before it forks any worker, so workers start with all of it done;
 * an observer host is forked from the process that asks for it when that is safe (see
-  :func:`roadtruth.harness.evaluation.observer_host.fork_is_safe`), so a worker's host inherits the same.
+  :func:`roadtruth.harness.evaluation.host_fork.fork_is_safe`), so a worker's host inherits the same.
 
 Nothing here creates an OpenGL context (a process that made one hangs its forked children when they
 render): MuJoCo is imported, never rendered with.
@@ -24,10 +24,11 @@ import sys
 import warnings
 
 #: Modules a scenario or sweep worker and an observer host import (the costly part of their start-up).
+#: Not cvxpy (1.1 s): observers import it only to solve a design, which the design cache makes rare.
 HEAVY_MODULES: tuple[str, ...] = (
-    "numpy", "pandas", "mujoco", "numba", "cvxpy",
+    "numpy", "pandas", "mujoco", "numba",
     "roadtruth.harness.jobs.pipeline", "roadtruth.harness.jobs.stress",
-    "roadtruth.harness.truth.simulate", "roadtruth.harness.sensors.emulate",
+    "roadtruth.harness.truth.simulate", "roadtruth.harness.sensors",
     "roadtruth.harness.evaluation.estimate", "roadtruth.harness.evaluation.scoring",
     "roadtruth.harness.evaluation.observer_host", "roadtruth.observers.registry",
 )
