@@ -539,6 +539,10 @@ def run_suite(
     check_log_rate(log_rate_hz)
     check_observer_timeout(observer_timeout_s)
     check_format(table_format)
+    if jobs > 1 or render:  # scenario workers or background renderers: their forkserver warms up meanwhile
+        from roadtruth.harness.jobs.worker_pool import start_forkserver
+
+        start_forkserver()
     names, chosen = _resolve(scenarios, suite_name, observers, vehicle, friction, sensors, faults)
     from roadtruth.harness.evaluation.observer_options import check_observer_options, options_record
 

@@ -449,6 +449,10 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
     fr_list = list(dict.fromkeys(frictions)) if frictions else [SCENARIO_FRICTION]
     fa_list = [NO_FAULTS if f.lower() == NO_FAULTS else f for f in dict.fromkeys(faults)] if faults else [NO_FAULTS]
     check_format(table_format)
+    if jobs > 1 and dask is None:  # the workers' forkserver warms up while the sweep is prepared
+        from roadtruth.harness.jobs.worker_pool import start_forkserver
+
+        start_forkserver()
     names, chosen = _resolve(scenarios, suite_name, observers, fr_list, fa_list)
     from roadtruth.harness.evaluation.observer_options import check_observer_options, options_record
     from roadtruth.harness.jobs.pipeline import prepare_scenario
