@@ -181,3 +181,31 @@ def test_observer_catalog_key_follows_every_source_file(tmp_path: Path, monkeypa
     os.utime(f, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))
     k2 = observer_catalog.catalog_key()
     assert len({k0, k1, k2}) == 3
+
+
+def test_a_listing_with_an_observer_registered_in_process_is_not_remembered(tmp_path: Path,
+                                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """A class a script registers in its own process is not part of the listing's key: a listing
+    holding it must not be served to the next command (which would list an observer it lacks)."""
+    from roadtruth.harness.evaluation import observer_catalog
+    from roadtruth.observers import registry
+    from roadtruth.observers.kalman import KalmanBicycle
+
+    monkeypatch.setenv("ROADTRUTH_CACHE", str(tmp_path / "cache"))
+
+    class ScriptObserver(KalmanBicycle):
+        name = "script_kf_listing_probe"
+
+    registry.register(ScriptObserver)
+    try:
+        rows = observer_catalog.observer_rows()
+        assert "script_kf_listing_probe" in [r["name"] for r in rows]
+    finally:
+        registry.unregister("script_kf_listing_probe")
+    from roadtruth.harness.files.disk_cache import cache_folder, read_entry
+
+    folder, key = cache_folder(observer_catalog.CACHE_KIND), observer_catalog.catalog_key()
+    assert read_entry(folder, key) is None
+    rows = observer_catalog.observer_rows()  # without it: listed afresh, and now remembered
+    assert "script_kf_listing_probe" not in [r["name"] for r in rows]
+    assert read_entry(folder, key) is not None

@@ -8,8 +8,8 @@ the Python version, and the path, size and modification time of every ``.py`` fi
 ``roadtruth.harness`` and ``roadtruth.observers`` packages. Editing, adding or removing any of them gives a new key.
 
 Not cached: a listing with observer plug-ins (entry points of ``roadtruth.observers``: their code
-lives elsewhere and is not in the key), and a listing during which a module failed to import (its
-warning must be shown again next time). A cache that cannot be read or written only costs the import.
+lives elsewhere and is not in the key) or with observers a script registered in its own process, and
+a listing during which a module failed to import (its warning must be shown again next time). A cache that cannot be read or written only costs the import.
 """
 
 from __future__ import annotations
@@ -53,6 +53,14 @@ def _has_plugins() -> bool:
     return len(entry_points(group=ENTRY_POINT_GROUP)) > 0
 
 
+def _only_packaged_observers() -> bool:
+    """True if every registered observer comes from the package's own modules (a class a script or
+    test registered in this process is not in the key, so a listing holding it is not remembered)."""
+    from roadtruth.observers.registry import available_observers, observer_class
+
+    return all(observer_class(n).__module__.startswith("roadtruth.observers.") for n in available_observers())
+
+
 def observer_rows() -> list[dict[str, Any]]:
     """``roadtruth.observers.registry.observer_info()``, from the cache when the code is unchanged."""
     from roadtruth.harness.files.disk_cache import cache_folder, read_entry, write_entry
@@ -72,6 +80,6 @@ def observer_rows() -> list[dict[str, Any]]:
         rows = observer_info()
     for w in caught:  # shown as they would have been, and nothing is remembered
         warnings.showwarning(w.message, w.category, w.filename, w.lineno)
-    if not caught:
+    if not caught and _only_packaged_observers():
         write_entry(folder, key, {"rows_json": json.dumps(rows, default=str)})
     return json.loads(json.dumps(rows, default=str))

@@ -230,6 +230,11 @@ def evaluate_scenario(sc: Any, vehicle: Any, observers: Sequence[str], sim_seed:
     from roadtruth.harness.truth.simulate import simulate
 
     if observers:
+        # numba's target set-up (~1 s, once per process) is needed by the simulation anyway; done
+        # first, a host forked from this process inherits it instead of paying it again.
+        from roadtruth.harness.jobs.warm_start import set_up_numba
+
+        set_up_numba()
         observer_host.prestart()  # its imports overlap the simulation
     timings = timings if timings is not None else {}
     empty: dict[str, Any] = {}
