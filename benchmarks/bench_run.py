@@ -174,6 +174,24 @@ def cold_start(jobs: int, render: bool) -> None:
               f"the same command again: {walls[1]:.1f} s; one-time compilation ≈ {walls[0] - walls[1]:.0f} s")
 
 
+def commands(n: int, jobs: int, render: bool, base: float) -> None:
+    """Wall time of ``n`` ``roadtruth run`` commands (default suite), each a fresh interpreter with warm
+    caches: what a user waits for, start-up and interpreter exit included (the in-process runs above
+    share one process's imports, observer host and renderers)."""
+    exe = Path(sys.executable).with_name("roadtruth")
+    walls = []
+    with tempfile.TemporaryDirectory(prefix="bench-run-cmd-") as tmp:
+        for k in range(n):
+            cmd = [str(exe), "run", "--jobs", str(jobs), "--out", str(Path(tmp) / f"cmd{k}")]
+            t = time.perf_counter()
+            subprocess.run(cmd + ([] if render else ["--no-render"]), check=True, capture_output=True)
+            walls.append(time.perf_counter() - t)
+    walls.sort()
+    print(f"\n`roadtruth run --jobs {jobs}{'' if render else ' --no-render'}`, fresh process each: best {walls[0]:.1f} s "
+          f"({walls[0] / base:.0f}x the baseline), median {walls[len(walls) // 2]:.1f} s "
+          f"({', '.join(f'{w:.1f}' for w in walls)})")
+
+
 def main() -> None:
     bench_env.with_bytecode()
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -183,6 +201,8 @@ def main() -> None:
     p.add_argument("--render-sizes", action="store_true", help="also print the render cost per frame by size")
     p.add_argument("--cold", action="store_true",
                    help="also time `roadtruth run` with empty numba and roadtruth caches (a fresh install)")
+    p.add_argument("--commands", type=int, default=0, metavar="N",
+                   help="also time N `roadtruth run` commands, each a fresh process (what a user waits for)")
     a = p.parse_args()
     base = baseline_s()
     print(f"baseline (python -c 'import numpy', best of 3): {base:.2f} s")
@@ -213,6 +233,8 @@ def main() -> None:
                 print(f"  render: {frames} frames, {timings['stages_s']['render'] / frames * 1e3:.0f} ms per frame")
             for name, ts in timings["scenarios_s"].items():
                 print(f"    {name:<20} " + " ".join(f"{k}={v:.2f}" for k, v in ts.items()))
+    if a.commands:
+        commands(a.commands, a.jobs, not a.no_render, base)
     if a.render_sizes:
         render_sizes()
     if a.cold:

@@ -45,6 +45,25 @@ def test_a_worker_starts_with_the_imports_numba_and_frozen_objects_of_the_forkse
     assert state["frozen"] > 10_000
 
 
+def test_renderers_fork_from_a_lighter_preload_and_scenario_workers_still_get_the_full_one() -> None:
+    """A run whose only workers render (``run`` without ``--jobs``) starts a forkserver that preloads
+    the renderer's imports, not the observers and numba's set-up; a pool of scenario workers later in
+    the same process gets the full preload (the server is restarted while no worker lives)."""
+    from multiprocessing import forkserver
+
+    from roadtruth.harness.jobs.worker_pool import RENDER_PRELOAD, start_forkserver
+
+    forkserver._forkserver._stop()  # whatever earlier tests of this process started
+    start_forkserver(renders_only=True)
+    with WorkerPool(worker_tasks.process_state, 1, what="renderer", preload=RENDER_PRELOAD) as pool:
+        light = pool.submit(0).result(timeout=300)
+    assert "mujoco" in light["modules"] and "roadtruth.observers.registry" not in light["modules"]
+    assert light["numba_registries"] == 0 and light["frozen"] > 1_000
+    with WorkerPool(worker_tasks.process_state, 1) as pool:
+        full = pool.submit(0).result(timeout=300)
+    assert "roadtruth.observers.registry" in full["modules"] and full["numba_registries"] > 0
+
+
 HOST_GUARANTEES = """
     import json, os, sys, threading, time
     import numpy as np

@@ -378,7 +378,9 @@ def process_pool(fn: Any, workers: int, what: str = "worker") -> WorkerPool:
     fresh interpreter (``start_method()``: forkserver on Linux, never plain fork, which hangs renders
     after an OpenGL context), die with the run, and a crash fails only the task the worker held."""
     assert start_method() != "fork"
-    return WorkerPool(fn, workers, what=what)
+    from roadtruth.harness.jobs.worker_pool import FORKSERVER_PRELOAD, RENDER_PRELOAD
+
+    return WorkerPool(fn, workers, what=what, preload=RENDER_PRELOAD if what == "renderer" else FORKSERVER_PRELOAD)
 
 
 def crashed_scenario(task: ScenarioTask, crash: WorkerCrashed, tasks: Sequence[ScenarioTask] = ()) -> ScenarioOutcome:
@@ -547,7 +549,7 @@ def run_suite(
     if jobs > 1 or render:  # scenario workers or background renderers: their forkserver warms up meanwhile
         from roadtruth.harness.jobs.worker_pool import start_forkserver
 
-        start_forkserver()
+        start_forkserver(renders_only=jobs <= 1)
     names, chosen = _resolve(scenarios, suite_name, observers, vehicle, friction, sensors, faults)
     from roadtruth.harness.evaluation.observer_options import check_observer_options, options_record
 

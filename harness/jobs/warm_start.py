@@ -96,3 +96,21 @@ def warm_process(*, freeze: bool = True) -> None:
     if freeze:
         gc.collect()
         gc.freeze()
+
+
+#: What a render worker imports (:func:`roadtruth.harness.jobs.pipeline.render_job`).
+RENDER_MODULES: tuple[str, ...] = ("numpy", "pandas", "mujoco", "cv2", "imageio_ffmpeg",
+                                   "roadtruth.harness.report.render", "roadtruth.harness.jobs.pipeline")
+
+
+def warm_renderer(*, freeze: bool = True) -> None:
+    """Import :data:`RENDER_MODULES` (a module that fails is left for the render to report), then
+    (``freeze``) ``gc.freeze`` as :func:`warm_process` does. No GL context is made."""
+    for name in RENDER_MODULES:
+        try:
+            importlib.import_module(name)
+        except Exception:  # noqa: BLE001, S112 - the render reports it
+            continue
+    if freeze:
+        gc.collect()
+        gc.freeze()

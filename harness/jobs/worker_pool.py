@@ -69,17 +69,22 @@ def start_method() -> str:
 #: What the forkserver imports before its first fork: the caller's ``__main__`` (multiprocessing's
 #: default) and the module that warms it (:mod:`roadtruth.harness.jobs.forkserver_preload`).
 FORKSERVER_PRELOAD: tuple[str, ...] = ("__main__", "roadtruth.harness.jobs.forkserver_preload")
+#: The preload when a run's only workers are renderers (:func:`start_forkserver` ``renders_only``).
+RENDER_PRELOAD: tuple[str, ...] = ("__main__", "roadtruth.harness.jobs.render_preload")
 
 
 #: Pools of this process that may still have workers (the forkserver is only restarted when none has).
 _live_pools = 0
 #: The start-up environment the running forkserver was started under (None: not started by a pool).
 _forkserver_started_under: tuple[object, ...] | None = None
+#: The preload of the running forkserver (None: not started by a pool).
+_forkserver_preload: tuple[str, ...] | None = None
 _forkserver_lock = threading.Lock()
 
 
-def worker_context() -> multiprocessing.context.BaseContext:
-    """The multiprocessing context of the pools; on Linux its forkserver preloads :data:`FORKSERVER_PRELOAD`.
+def worker_context(preload: tuple[str, ...] = FORKSERVER_PRELOAD) -> multiprocessing.context.BaseContext:
+    """The multiprocessing context of the pools; on Linux its forkserver preloads ``preload`` when it
+    starts here (default :data:`FORKSERVER_PRELOAD`; a server already running keeps its own).
 
     The forkserver lives as long as the process and imports once, when it starts. If the start-up
     environment has changed since (``PYTHONPATH``, ``NUMBA_*``, ``MUJOCO_GL``, see
@@ -87,7 +92,7 @@ def worker_context() -> multiprocessing.context.BaseContext:
     now; so it is restarted, but only when no pool of this process has workers (they are its
     children and die with it).
     """
-    global _forkserver_started_under
+    global _forkserver_started_under, _forkserver_preload
     ctx = multiprocessing.get_context(start_method())
     if start_method() != "forkserver":
         return ctx
@@ -95,29 +100,36 @@ def worker_context() -> multiprocessing.context.BaseContext:
 
     from roadtruth.harness.jobs.warm_start import startup_environment
 
-    ctx.set_forkserver_preload(list(FORKSERVER_PRELOAD))
     now = startup_environment()
     server = forkserver._forkserver  # the process's one forkserver; _stop is its documented-for-tests stop
     with _forkserver_lock:
         running = server._forkserver_pid is not None
-        if running and _forkserver_started_under not in (None, now) and _live_pools == 0:
+        # The full preload serves every pool; a renderers-only one lacks what scenario workers need.
+        lacking = _forkserver_preload not in (None, preload, FORKSERVER_PRELOAD)
+        if running and (_forkserver_started_under not in (None, now) or lacking) and _live_pools == 0:
             server._stop()
             running = False
         if not running:
-            _forkserver_started_under = now
+            _forkserver_started_under, _forkserver_preload = now, preload
+            ctx.set_forkserver_preload(list(preload))  # what the server about to start imports
     return ctx
 
 
-def start_forkserver() -> None:
+def start_forkserver(*, renders_only: bool = False) -> None:
     """Start the pools' forkserver now (Linux; elsewhere nothing), so its preload (imports, every
     observer, numba's set-up: ~2.5 s of CPU) runs while the caller is still checking its inputs and
     preparing tasks, instead of holding up the first worker. Returns at once; the first pool uses
-    the server started here (restarted only if the start-up environment changes meanwhile)."""
+    the server started here (restarted only if the start-up environment changes meanwhile).
+
+    ``renders_only``: this process's pools will only render (``run`` without ``--jobs``), so the
+    server preloads :data:`RENDER_PRELOAD`, not the observers and numba a renderer never uses. A
+    scenario worker forked from it later still works; it imports what it needs itself.
+    """
     if start_method() != "forkserver":
         return
     from multiprocessing import forkserver
 
-    worker_context()
+    worker_context(RENDER_PRELOAD if renders_only else FORKSERVER_PRELOAD)
     forkserver.ensure_running()
 
 
@@ -260,14 +272,15 @@ class WorkerPool(Generic[T, R]):
     normal exit waits for the submitted tasks, an exception (Ctrl-C included) kills the workers.
     """
 
-    def __init__(self, fn: Callable[[T], R], workers: int, *, what: str = "worker") -> None:
+    def __init__(self, fn: Callable[[T], R], workers: int, *, what: str = "worker",
+                 preload: tuple[str, ...] = FORKSERVER_PRELOAD) -> None:
         if workers < 1:
             raise ValueError(f"workers must be >= 1 (got {workers})")
         self._fn = fn
         self._size = int(workers)
         self._what = what
         global _live_pools
-        self._ctx = worker_context()
+        self._ctx = worker_context(preload)
         with _forkserver_lock:
             _live_pools += 1
         self._counted = True
