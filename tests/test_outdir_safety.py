@@ -23,7 +23,9 @@ from roadtruth.harness.errors import InputError
 from roadtruth.harness.files.outdir import (
     MARKER,
     OWNER,
+    OWNER_WRITING,
     atomic_output_dir,
+    foreign_entry,
     owner_alive,
     remove_stale_partials,
 )
@@ -336,3 +338,18 @@ def test_four_writers_finishing_at_the_same_instant(tmp_path: Path) -> None:
     k, i = map(int, (out / "metrics.csv").read_text().split())
     assert json.loads((out / "run.json").read_text()) == {"command": "run", "writer": k, "round": i}
     assert i == rounds - 1
+
+
+def test_the_owner_file_appears_whole_and_its_half_written_form_is_roadtruths(tmp_path: Path) -> None:
+    """The owner record is written beside and renamed into place: a command killed mid-write leaves
+    no empty owner file (which would make its folder unattributable, never cleaned up), and the
+    half-written file it may leave in a finished run folder does not make that folder foreign."""
+    with atomic_output_dir(tmp_path / "run", command="run", inputs=[]) as tmp:
+        record = json.loads((tmp / OWNER).read_text(encoding="utf-8"))
+        assert record["pid"] == os.getpid() and not (tmp / OWNER_WRITING).exists()
+        (tmp / "metrics.csv").write_text("x\n")
+    done = tmp_path / "run"
+    (done / OWNER_WRITING).write_text('{"pid": ')  # killed while replacing this folder
+    assert foreign_entry(done) is None
+    (done / "mine.txt").write_text("a user's file")
+    assert foreign_entry(done) == "mine.txt"

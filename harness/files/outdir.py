@@ -42,6 +42,8 @@ MARKER = ".roadtruth"
 """File in every finished output folder: the command that wrote it and the entries it wrote (JSON)."""
 
 OWNER = ".roadtruth-owner"
+#: The owner file while it is written (renamed to OWNER when whole).
+OWNER_WRITING = f"{OWNER}.writing"
 """File in a folder being written: the writing process (pid, start time, host), to tell stale from live."""
 
 LATE_ENTRIES = frozenset({"check.csv", "check.json", "check.html", "index.html"})
@@ -127,7 +129,7 @@ def _foreign_entry(folder: Path) -> str | None:
             raise
         except (OSError, ValueError, KeyError, TypeError):
             return MARKER
-        extra = [n for n in names if n not in listed and n not in (MARKER, OWNER) and n not in LATE_ENTRIES
+        extra = [n for n in names if n not in listed and n not in (MARKER, OWNER, OWNER_WRITING) and n not in LATE_ENTRIES
                  and not _is_roadtruth_temp(n)]
         return extra[0] if extra else None
     run_json = folder / "run.json"
@@ -305,7 +307,11 @@ def remove_stale_partials(parent: Path) -> list[Path]:
 
 
 def _write_owner(folder: Path) -> None:
-    (folder / OWNER).write_text(json.dumps(_owner_record()) + "\n", encoding="utf-8")
+    # Written whole, then renamed into place: a process killed mid-write must not leave an empty
+    # owner file, which would make its folder unattributable (never cleaned up) instead of stale.
+    tmp = folder / OWNER_WRITING
+    tmp.write_text(json.dumps(_owner_record()) + "\n", encoding="utf-8")
+    os.replace(tmp, folder / OWNER)
 
 
 def _new_partial(parent: Path, name: str) -> Path:
@@ -365,7 +371,7 @@ def write_marker(folder: Path, command: str, extra: Iterable[str] = ()) -> None:
     marker = folder / MARKER
     with contextlib.suppress(OSError, ValueError, KeyError, TypeError):
         entries |= set(json.loads(marker.read_text(encoding="utf-8"))["entries"])
-    entries |= {n for n in os.listdir(folder) if n not in (MARKER, OWNER) and not _is_roadtruth_temp(n)}
+    entries |= {n for n in os.listdir(folder) if n not in (MARKER, OWNER, OWNER_WRITING) and not _is_roadtruth_temp(n)}
     marker.write_text(json.dumps({"command": command, "entries": sorted(entries)}, indent=1) + "\n",
                       encoding="utf-8")
 
