@@ -557,31 +557,36 @@ class WideEstimates:
         for name, arr in _track_columns(track):
             self._columns.setdefault(name, {})[segment] = np.array(arr, dtype=float)  # own contiguous copy
 
+    def _stitched(self, cols: dict[str, str], segments: list[int], shift_s: dict[int, float]) -> dict[str, np.ndarray]:
+        """One state's ``t_s`` (shifted by ``shift_s[segment]``), value, bound and variance arrays over
+        ``segments`` joined in order (NaN where a kind is absent on a segment)."""
+        def joined(parts: list[np.ndarray]) -> np.ndarray:
+            return np.concatenate(parts) if parts else np.empty(0)
+
+        out = {"t_s": joined([self._times[seg] + shift_s.get(seg, 0.0) for seg in segments])}
+        for kind in ("value", *BOUND_SUFFIXES):
+            per = self._columns[cols[kind]] if kind in cols else {}
+            out[kind] = joined([per[seg] if seg in per else np.full(len(self._times[seg]), np.nan) for seg in segments])
+        return out
+
     def track(self, observer: str, shift_s: dict[int, float] | None = None) -> Any:
         """One observer's estimates over its segments as an ``EstimateTrack``, ``t_s`` shifted by
         ``shift_s[segment]`` (the rows :meth:`long` gives, as arrays; for scoring on a stitched axis).
         None if the observer has no estimates."""
         from roadtruth.observers.base import EstimateTrack
 
-        shift_s = shift_s or {}
         spec = {k[1]: v for k, v in estimate_columns(self._columns).items() if k[0] == observer}
         if not spec:
             return None
         segs = [seg for seg in self._times if all(seg in self._columns[c["value"]] for c in spec.values())]
-        t = np.concatenate([self._times[seg] + shift_s.get(seg, 0.0) for seg in segs]) if segs else np.empty(0)
+        states = {state: self._stitched(cols, segs, shift_s or {}) for state, cols in spec.items()}
 
         def stacked(kind: str) -> np.ndarray | None:
-            if not any(kind in c for c in spec.values()):
+            if kind != "value" and not any(kind in c for c in spec.values()):
                 return None
-            cols = []
-            for c in spec.values():
-                per = self._columns[c[kind]] if kind in c else {}
-                cols.append(np.concatenate([per[seg] if seg in per else np.full(len(self._times[seg]), np.nan)
-                                            for seg in segs]) if segs else np.empty(0))
-            return np.column_stack(cols) if cols else None
+            return np.column_stack([st[kind] for st in states.values()])
 
-        x = stacked("value")
-        return EstimateTrack(observer, tuple(spec), t, x if x is not None else np.empty((0, 0)),
+        return EstimateTrack(observer, tuple(spec), next(iter(states.values()))["t_s"], stacked("value"),
                              stacked("lo"), stacked("hi"), stacked("var"))
 
     @property
@@ -616,18 +621,10 @@ class WideEstimates:
     def long(self, observer: str, shift_s: dict[int, float] | None = None) -> pd.DataFrame:
         """One observer's long estimates over its segments, ``t_s`` shifted by ``shift_s[segment]``
         (``observer``/``state`` categorical, see :func:`_labels`)."""
-        shift_s = shift_s or {}
         spec = {k: v for k, v in estimate_columns(self._columns).items() if k[0] == observer}
-        parts = []
-        for (obs, state), cols in spec.items():
-            for seg in self._times:
-                if seg not in self._columns[cols["value"]]:
-                    continue
-                n = len(self._times[seg])
-                part = {"t_s": self._times[seg] + shift_s.get(seg, 0.0)}
-                for kind in ("value", *BOUND_SUFFIXES):
-                    part[kind] = self._columns[cols[kind]][seg] if kind in cols else np.full(n, np.nan)
-                parts.append((obs, state, part))
+        parts = [(obs, state, self._stitched(cols, [seg for seg in self._times if seg in self._columns[cols["value"]]],
+                                             shift_s or {}))
+                 for (obs, state), cols in spec.items()]
         return _long_frame(parts, ("t_s",), categorical=True)
 
     def drop(self, observer: str) -> None:
