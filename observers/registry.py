@@ -96,6 +96,12 @@ def load_plugins() -> list[str]:
     return loaded
 
 
+def loaded() -> bool:
+    """True once this process has imported every observer module (``available_observers`` and the
+    like do it on first use)."""
+    return _loaded
+
+
 def available_observers() -> list[str]:
     """Sorted names of every registered observer."""
     _load_all()

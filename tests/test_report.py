@@ -437,7 +437,7 @@ def test_rebuilding_a_report_does_not_import_the_observers_and_styles_them_as_ru
         "from roadtruth.harness.report.styles import registry_names\n"
         f"build_report(Path({str(run_dir)!r}))\n"
         "reg = sys.modules.get('roadtruth.observers.registry')\n"
-        "print(bool(reg and reg._loaded), 'numba' in sys.modules, ','.join(registry_names()))\n"
+        "print(bool(reg and reg.loaded()), 'numba' in sys.modules, ','.join(registry_names()))\n"
     )
     registered = fresh("from roadtruth.observers.registry import available_observers as a; print(','.join(a()))")
     assert out[0] == "False" and out[1] == "False"

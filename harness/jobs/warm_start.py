@@ -83,16 +83,25 @@ def warm_process(*, freeze: bool = True) -> None:
     A module that fails to import is skipped: the worker that needs it imports it again and reports
     the failure where it belongs, with its task.
     """
-    for name in HEAVY_MODULES:
+    _import_and_freeze(HEAVY_MODULES, freeze=False)
+    try:
+        import_observers()
+    except Exception:  # noqa: BLE001 - the observer's own request reports it
+        pass
+    set_up_numba()
+    if freeze:
+        gc.collect()
+        gc.freeze()
+
+
+def _import_and_freeze(modules: tuple[str, ...], *, freeze: bool) -> None:
+    """Import ``modules`` (one that fails is skipped: the task that needs it imports it again and
+    reports the failure where it belongs), then (``freeze``) ``gc.collect`` and ``gc.freeze``."""
+    for name in modules:
         try:
             importlib.import_module(name)
         except Exception:  # noqa: BLE001, S112 - reported by the task that needs the module
             continue
-    try:
-        import_observers()
-    except Exception:  # noqa: BLE001 - as above: the observer's own request reports it
-        pass
-    set_up_numba()
     if freeze:
         gc.collect()
         gc.freeze()
@@ -106,11 +115,4 @@ RENDER_MODULES: tuple[str, ...] = ("numpy", "pandas", "mujoco", "cv2", "imageio_
 def warm_renderer(*, freeze: bool = True) -> None:
     """Import :data:`RENDER_MODULES` (a module that fails is left for the render to report), then
     (``freeze``) ``gc.freeze`` as :func:`warm_process` does. No GL context is made."""
-    for name in RENDER_MODULES:
-        try:
-            importlib.import_module(name)
-        except Exception:  # noqa: BLE001, S112 - the render reports it
-            continue
-    if freeze:
-        gc.collect()
-        gc.freeze()
+    _import_and_freeze(RENDER_MODULES, freeze=freeze)

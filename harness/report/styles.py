@@ -57,7 +57,7 @@ def registry_names() -> tuple[str, ...]:
     """
     try:
         registry = sys.modules.get("roadtruth.observers.registry")
-        if registry is None or not getattr(registry, "_loaded", False):
+        if registry is None or not registry.loaded():
             from roadtruth.harness.evaluation.observer_catalog import observer_rows
 
             return tuple(str(r["name"]) for r in observer_rows())
