@@ -186,6 +186,28 @@ def test_a_scenario_s_vehicle_is_parsed_once_and_an_edit_is_seen(tmp_path: Path,
     assert load_scenario(scen).vehicle_params().mass_kg == 1600.0 and len(parses) == 2
 
 
+
+def test_a_thresholds_file_is_parsed_once_and_an_edit_is_seen(tmp_path: Path,
+                                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    # A stress page looks up the shipped CI limits once per breaking point.
+    from roadtruth.harness.jobs import check_rules
+    from roadtruth.harness.report.stress_report import rmse_threshold
+
+    f = tmp_path / "ci.yaml"
+    f.write_text("rules:\n  - {metric: rmse, state: beta_rad, max: 0.0350}\n")
+    now = time.time_ns()
+    _set_mtime_ns(f, now - 2 * OLD_NS)
+    parses = _count_calls(monkeypatch, check_rules, "_parse_thresholds")
+    first = [check_rules.load_thresholds(f) for _ in range(3)]
+    assert len(parses) == 1 and all(t is first[0] for t in first)
+    assert first[0].rules[0].max == 0.035
+    assert rmse_threshold("step_steer", "kf_bicycle", "beta_rad", first[0].rules)[0] == 0.035
+    _edit_same_size(f, "max: 0.0350", "max: 0.0420")
+    _set_mtime_ns(f, now - OLD_NS)
+    assert check_rules.load_thresholds(f).rules[0].max == 0.042 and len(parses) == 2
+    shipped = [check_rules.load_thresholds(check_rules.DEFAULT_THRESHOLDS) for _ in range(2)]
+    assert shipped[0] is shipped[1]
+
 # ---- the YAML reader: libyaml's parser under the module's own rules --------------------------------
 
 def _shipped_yaml_files() -> list[Path]:

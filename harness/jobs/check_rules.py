@@ -18,6 +18,7 @@ import pandas as pd
 
 from roadtruth.harness.errors import InputError
 from roadtruth.harness.evaluation.scoring import COLUMNS, KEY_COLUMNS
+from roadtruth.harness.files.parsed_files import ParsedFiles
 from roadtruth.harness.files.strict_yaml import Fields, load_mapping
 from roadtruth.harness.jobs.compare import COMPARED
 from roadtruth.harness.signals import is_canonical
@@ -210,8 +211,20 @@ def _parse_regression(f: Fields) -> RegressionSpec:
     return RegressionSpec(metrics=tuple(dict.fromkeys(metrics)), rel_tol=rel, abs_tol=tuple(table))
 
 
+#: Parsed thresholds files (an edited file is read again): a stress page looks up the shipped CI
+#: limits once per breaking point, and parsing that file costs ~50 ms each time.
+_THRESHOLDS = ParsedFiles()
+
+
 def load_thresholds(path: Path) -> Thresholds:
-    """Read and validate a thresholds YAML (format: docs/CHECK.md). Raises ``ThresholdsError``."""
+    """Read and validate a thresholds YAML (format: docs/CHECK.md). Raises ``ThresholdsError``.
+
+    The result is frozen, so every caller shares one parse while the file is unchanged.
+    """
+    return _THRESHOLDS.get(Path(path), lambda: _parse_thresholds(path), variant=str(path))
+
+
+def _parse_thresholds(path: Path) -> Thresholds:
     src = str(path)
     f = Fields(load_mapping(path, ThresholdsError), source=src, error=ThresholdsError)
     description = f.string("description", "")
