@@ -18,9 +18,16 @@ Jobs (what the commands do): :func:`run_suite` (``roadtruth run``), :func:`run_c
 from __future__ import annotations
 
 import importlib
+import os
 from typing import Any
 
 __version__ = "0.1.0"
+
+#: The environment when roadtruth was first imported, before a caller (a notebook, a test) could
+#: change it: what this process's imports were made under. A child forked later holds those imports,
+#: so it may stand in for a fresh interpreter only while the start-up variables are still these
+#: (``roadtruth.harness.evaluation.host_fork.fork_is_safe``).
+ENVIRON_AT_IMPORT: dict[str, str] = dict(os.environ)
 
 #: public name -> (module, attribute)
 _PUBLIC: dict[str, tuple[str, str]] = {

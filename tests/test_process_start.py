@@ -141,3 +141,19 @@ def test_a_forked_host_keeps_every_guarantee_and_hosts_fork_only_when_safe() -> 
     assert not got["safe_with_thread"]
     assert not got["safe_with_new_pythonpath"] and got["safe_again"]
     assert not got["safe_after_gl"] and not got["fresh_forked"]
+
+
+def test_a_pythonpath_changed_before_the_host_module_is_imported_still_forbids_forking() -> None:
+    """What a process's imports were made under is read when roadtruth is first imported: a caller
+    (a notebook, a test) that changes ``PYTHONPATH`` afterwards, but before the first observer host,
+    gets a fresh-interpreter host that sees the new path, not a forked one that holds the old imports."""
+    got = _script("""
+        import json, os
+        import roadtruth
+        os.environ["PYTHONPATH"] = os.environ.get("PYTHONPATH", "") + os.pathsep + "/nonexistent-site"
+        from roadtruth.harness.evaluation.host_fork import fork_is_safe
+        changed = fork_is_safe()
+        os.environ["PYTHONPATH"] = os.environ["PYTHONPATH"].rsplit(os.pathsep, 1)[0]
+        print(json.dumps({"changed": changed, "restored": fork_is_safe()}))
+    """)
+    assert got == {"changed": False, "restored": True}

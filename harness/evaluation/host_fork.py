@@ -21,6 +21,7 @@ import time
 import traceback
 from collections.abc import Callable
 
+import roadtruth
 from roadtruth.harness.jobs.warm_start import startup_environment
 
 
@@ -38,8 +39,10 @@ def name_process(name: str) -> None:
 _GL_CONTEXT_LIBRARIES = re.compile(rb"_dri\.so|libgallium|libnvidia-eglcore|libnvidia-glcore|libOSMesa")
 
 
-#: The start-up environment this process's imports were made under (see ``startup_environment``).
-_IMPORTED_UNDER = startup_environment()
+#: The start-up environment this process's imports were made under (see ``startup_environment``),
+#: as it was when roadtruth was first imported: a caller may change ``PYTHONPATH`` before this
+#: module is first imported.
+_IMPORTED_UNDER = startup_environment(roadtruth.ENVIRON_AT_IMPORT)
 
 
 def fork_is_safe() -> bool:

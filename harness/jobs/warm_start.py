@@ -22,6 +22,7 @@ import importlib
 import os
 import sys
 import warnings
+from collections.abc import Mapping
 
 #: Modules a scenario or sweep worker and an observer host import (the costly part of their start-up).
 #: Not cvxpy (1.1 s): observers import it only to solve a design, which the design cache makes rare.
@@ -38,14 +39,15 @@ HEAVY_MODULES: tuple[str, ...] = (
 _STARTUP_PREFIXES = ("PYTHON", "NUMBA_", "MUJOCO_")
 
 
-def startup_environment() -> tuple[object, ...]:
+def startup_environment(environ: Mapping[str, str] | None = None) -> tuple[object, ...]:
     """What a fresh interpreter's imports depend on besides the files: the interpreter and the
     ``PYTHON*``, ``NUMBA_*``, ``MUJOCO_*`` variables (e.g. a ``PYTHONPATH`` with a ``sitecustomize``).
 
     A process warmed under one start-up environment and forked after it changed would give its child
     what it imported then, not what a fresh interpreter would import now; callers compare this.
     """
-    return (sys.executable, tuple(sorted((k, v) for k, v in os.environ.items() if k.startswith(_STARTUP_PREFIXES))))
+    env = os.environ if environ is None else environ
+    return (sys.executable, tuple(sorted((k, v) for k, v in env.items() if k.startswith(_STARTUP_PREFIXES))))
 
 
 def _one_more(x: float) -> float:
