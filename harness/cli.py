@@ -233,6 +233,10 @@ def _cmd_check(a: argparse.Namespace) -> int:
 
 
 def _cmd_stress(a: argparse.Namespace) -> int:
+    if a.dask == "local":
+        from roadtruth.harness.jobs.dask_setup import start_local_cluster_server
+
+        start_local_cluster_server()
     _start_workers_server(a.jobs > 1 and not a.dask)
     from roadtruth.harness.jobs.stress import parse_fault_specs, parse_friction_list, run_stress
 

@@ -157,3 +157,39 @@ def test_a_pythonpath_changed_before_the_host_module_is_imported_still_forbids_f
         print(json.dumps({"changed": changed, "restored": fork_is_safe()}))
     """)
     assert got == {"changed": False, "restored": True}
+
+
+def test_dask_local_workers_fork_from_the_preloaded_server_under_dask_s_hash_seed_and_fork_their_host() -> None:
+    """``stress --dask local``: each worker of the LocalCluster forks from this process's preloaded
+    server, started under the ``PYTHONHASHSEED`` Dask gives its workers (so a worker hashes strings as
+    a fresh Dask worker would), and has one idle observer host forked at start-up, when it was still
+    single-threaded; a sweep's tasks then run on it instead of fresh-interpreter hosts."""
+    pytest.importorskip("distributed")
+    got = _script("""
+        import json, os, sys
+        if __name__ == "__main__":
+            from distributed import Client
+            from roadtruth.harness.jobs.dask_setup import local_cluster, worker_hash_seed
+
+            def probe():
+                from roadtruth.harness.evaluation import observer_host
+                return {"hosts": [[h.forked, h.alive()] for h in observer_host._idle],
+                        "hash": hash("roadtruth"), "seed": os.environ.get("PYTHONHASHSEED"),
+                        "preloaded": "roadtruth.observers.registry" in sys.modules}
+
+            cluster = local_cluster(2)
+            client = Client(cluster)
+            try:
+                workers = list(client.run(probe).values())
+            finally:
+                client.close()
+                cluster.close()
+            print(json.dumps({"workers": workers, "seed": worker_hash_seed()}))
+    """)
+    fresh = subprocess.run([sys.executable, "-c", "print(hash('roadtruth'))"], capture_output=True, text=True,
+                           env={**os.environ, "PYTHONHASHSEED": got["seed"]}, check=True)
+    assert len(got["workers"]) == 2
+    for w in got["workers"]:
+        assert w["hosts"] == [[True, True]]
+        assert w["preloaded"] and w["seed"] == got["seed"]
+        assert w["hash"] == int(fresh.stdout)

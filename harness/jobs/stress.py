@@ -341,7 +341,7 @@ def _run_dask(cases: list[StressCase], address: str, jobs: int, info: dict[str, 
     """Run the cases on ``distributed.Client(address)``; ``address == "local"`` starts a LocalCluster
     of ``jobs`` worker processes on loopback for this run and closes it afterwards."""
     try:
-        from distributed import Client, LocalCluster
+        from distributed import Client
         from distributed import as_completed as dask_completed
     except ImportError:
         raise StressSpecError("--dask needs the dask and distributed packages "
@@ -351,8 +351,9 @@ def _run_dask(cases: list[StressCase], address: str, jobs: int, info: dict[str, 
     t = time.perf_counter()
     cluster = None
     if address == "local":
-        cluster = LocalCluster(n_workers=max(1, jobs), threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address=None)
+        from roadtruth.harness.jobs.dask_setup import local_cluster
+
+        cluster = local_cluster(jobs)
         client = Client(cluster)
     else:
         try:

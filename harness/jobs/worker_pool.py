@@ -71,6 +71,15 @@ def start_method() -> str:
 FORKSERVER_PRELOAD: tuple[str, ...] = ("__main__", "roadtruth.harness.jobs.forkserver_preload")
 #: The preload when a run's only workers are renderers (:func:`start_forkserver` ``renders_only``).
 RENDER_PRELOAD: tuple[str, ...] = ("__main__", "roadtruth.harness.jobs.render_preload")
+#: The preload when the server's children are the workers of a Dask ``LocalCluster`` (``stress
+#: --dask local``): everything a scenario worker needs, and Dask's own worker code.
+DASK_PRELOAD: tuple[str, ...] = (*FORKSERVER_PRELOAD, "distributed")
+
+
+def _serves(running: tuple[str, ...], wanted: tuple[str, ...]) -> bool:
+    """True if a server started with preload ``running`` gives the children ``wanted`` asks for: it
+    preloaded at least that, or it is a full preload and a renderer is asked for."""
+    return set(wanted) <= set(running) or (wanted == RENDER_PRELOAD and set(FORKSERVER_PRELOAD) <= set(running))
 
 
 #: Pools of this process that may still have workers (the forkserver is only restarted when none has).
@@ -105,7 +114,7 @@ def worker_context(preload: tuple[str, ...] = FORKSERVER_PRELOAD) -> multiproces
     with _forkserver_lock:
         running = server._forkserver_pid is not None
         # The full preload serves every pool; a renderers-only one lacks what scenario workers need.
-        lacking = _forkserver_preload not in (None, preload, FORKSERVER_PRELOAD)
+        lacking = _forkserver_preload is not None and not _serves(_forkserver_preload, preload)
         if running and (_forkserver_started_under not in (None, now) or lacking) and _live_pools == 0:
             server._stop()
             running = False
@@ -115,7 +124,7 @@ def worker_context(preload: tuple[str, ...] = FORKSERVER_PRELOAD) -> multiproces
     return ctx
 
 
-def start_forkserver(*, renders_only: bool = False) -> None:
+def start_forkserver(*, renders_only: bool = False, preload: tuple[str, ...] | None = None) -> None:
     """Start the pools' forkserver now (Linux; elsewhere nothing), so its preload (imports, every
     observer, numba's set-up: ~2.5 s of CPU) runs while the caller is still checking its inputs and
     preparing tasks, instead of holding up the first worker. Returns at once; the first pool uses
@@ -124,12 +133,13 @@ def start_forkserver(*, renders_only: bool = False) -> None:
     ``renders_only``: this process's pools will only render (``run`` without ``--jobs``), so the
     server preloads :data:`RENDER_PRELOAD`, not the observers and numba a renderer never uses. A
     scenario worker forked from it later still works; it imports what it needs itself.
+    ``preload``: another preload (e.g. :data:`DASK_PRELOAD`).
     """
     if start_method() != "forkserver":
         return
     from multiprocessing import forkserver
 
-    worker_context(RENDER_PRELOAD if renders_only else FORKSERVER_PRELOAD)
+    worker_context(preload or (RENDER_PRELOAD if renders_only else FORKSERVER_PRELOAD))
     forkserver.ensure_running()
 
 
