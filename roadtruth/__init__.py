@@ -23,6 +23,11 @@ from typing import Any
 
 __version__ = "0.1.0"
 
+# Offscreen rendering (no display: GLFW cannot work); the GL back-end is chosen when mujoco is first
+# imported. Set here, before anything else of roadtruth runs, so that every process of a run (fresh
+# or forked) starts under the same value; the modules that import mujoco repeat it for themselves.
+os.environ.setdefault("MUJOCO_GL", "egl")
+
 #: The environment when roadtruth was first imported, before a caller (a notebook, a test) could
 #: change it: what this process's imports were made under. A child forked later holds those imports,
 #: so it may stand in for a fresh interpreter only while the start-up variables are still these

@@ -193,3 +193,16 @@ def test_dask_local_workers_fork_from_the_preloaded_server_under_dask_s_hash_see
         assert w["hosts"] == [[True, True]]
         assert w["preloaded"] and w["seed"] == got["seed"]
         assert w["hash"] == int(fresh.stdout)
+
+
+def test_a_command_started_without_mujoco_gl_still_forks_its_hosts() -> None:
+    """roadtruth chooses offscreen GL (``MUJOCO_GL=egl``) itself when the caller did not; it does so
+    when it is first imported, so a command's later modules leave the start-up environment as it was
+    and its observer hosts still fork."""
+    env = {k: v for k, v in os.environ.items() if k != "MUJOCO_GL"}
+    body = ("import json, os\nimport roadtruth.harness.cli\nimport roadtruth.harness.jobs.pipeline\n"
+            "from roadtruth.harness.evaluation.host_fork import fork_is_safe\n"
+            "print(json.dumps({'gl': os.environ.get('MUJOCO_GL'), 'safe': fork_is_safe()}))")
+    out = subprocess.run([sys.executable, "-c", body], env=env, capture_output=True, text=True, timeout=240)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == {"gl": "egl", "safe": True}
