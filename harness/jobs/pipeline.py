@@ -419,7 +419,9 @@ def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress) -> Iter
     if jobs > 1 and len(tasks) > 1:
         with process_pool(run_scenario, min(jobs, len(tasks))) as pool:
             from roadtruth.harness.files.disk_cache import DesignWarmup, presolve_designs
+            from roadtruth.harness.report.builder import warm_up
 
+            warm_up()  # fits in the wait for the workers' server to finish its preload, not at the end
             pool.start_workers()  # one solves the designs every worker needs, once; the others start meanwhile
             presolve_designs(pool.submit_call, DesignWarmup.of(
                 [(t.name, t.vehicle, t.friction) for t in tasks], [o for t in tasks for o in t.observers],

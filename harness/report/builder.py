@@ -183,6 +183,15 @@ def render_report(run_dir: Path, sections: list[Section] | None = None) -> str:
     return ReportBuilder(RunData.load(Path(run_dir)), sections).build()
 
 
+def warm_up() -> None:
+    """Do the page's one-time work now (plotly.js read, every template compiled): a process that
+    waits anyway (its workers' server is still starting) takes it off the end of the run."""
+    plotly_js()
+    env = _environment()
+    for name in env.list_templates():
+        env.get_template(name)
+
+
 def build_report(run_dir: Path) -> Path:
     """Rebuild ``run_dir/index.html`` from the saved CSV/JSON files alone (no re-simulation).
 

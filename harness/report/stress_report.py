@@ -403,6 +403,15 @@ def stress_page(summary: pd.DataFrame, run: dict[str, Any], rules: Any = None) -
     return page("roadtruth stress — breaking points", sections, top=top, charts=bool(plots))
 
 
+def warm_up() -> None:
+    """Do the page's one-time work now (the shipped thresholds parsed, the page's modules imported,
+    plotly.js read): a sweep waiting for its workers to start takes it off the end of the sweep."""
+    from roadtruth.harness.report import builder, figures  # noqa: F401 - imported for later
+
+    _shipped_rules()
+    builder.plotly_js()
+
+
 def write_index(folder: Path, summary: pd.DataFrame, run: dict[str, Any]) -> Path:
     """Write ``folder/index.html`` (see :func:`stress_page`). No timings: the page is reproducible."""
     path = Path(folder) / "index.html"
