@@ -9,7 +9,6 @@ tracks that cover only some replay segments, and the χ² band of the NEES test.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -17,18 +16,9 @@ import pytest
 from scipy.stats import chi2
 
 from roadtruth.harness.evaluation import scoring
-from roadtruth.harness.evaluation.estimate import long_estimates
+from roadtruth.harness.evaluation.estimate import ObserverRun, long_estimates
 from roadtruth.harness.files.table_io import WideEstimates, estimates_wide, tracks_wide
 from roadtruth.observers.base import EstimateTrack
-
-
-@dataclass(frozen=True)
-class Run:
-    status: str = "ok"
-    us_per_step: float = 1.0
-    certified: bool | None = True
-    design_reason: str = ""
-    n_steps: int = 0
 
 
 def _tracks(t: np.ndarray, seed: int = 7) -> dict[str, EstimateTrack]:
@@ -65,7 +55,8 @@ def test_scoring_the_tracks_gives_the_metrics_of_the_long_frame_bit_for_bit():
     truth = pd.DataFrame({"t_s": np.round(np.arange(0.0, 8.0, 0.001), 9)})
     for c, v in _truth(truth["t_s"].to_numpy()).items():
         truth[c] = v
-    runs = {"kf": Run(), "iv": Run(), "ol": Run(), "failed": Run(status="error: boom")}
+    ok = ObserverRun("ok", 1.0, True, "", 0)
+    runs = {"kf": ok, "iv": ok, "ol": ok, "failed": ObserverRun("error: boom", 1.0, True, "", 0)}
     kw = dict(scenario="s", runs=runs, mass_kg=1500.0, scored_until_s=7.5)
     a = scoring.score(truth, long_estimates(tracks), **kw)
     b = scoring.score(truth, tracks, **kw)
