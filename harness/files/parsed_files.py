@@ -23,6 +23,8 @@ from collections.abc import Callable, Hashable
 from pathlib import Path
 from typing import Any
 
+from roadtruth.harness.files.strict_yaml import tracing
+
 #: A file modified less than this before it was parsed is checked by content on every hit [ns]
 #: (mtime ticks are 1-10 ms on Linux; network file systems can lag by about a second).
 RACY_WINDOW_NS = 2_000_000_000
@@ -53,8 +55,11 @@ class ParsedFiles:
 
         ``variant`` names anything besides the file's bytes that the result depends on (for
         a scenario: how its path was spelled and the working folder its relative paths are
-        resolved in); results for different variants are kept apart.
+        resolved in); results for different variants are kept apart. While a JSON Schema is traced
+        from the parsers' field reads (``strict_yaml.tracing``), every call parses.
         """
+        if tracing():  # the published schemas are traced from a reading: read, do not remember
+            return parse()
         try:
             st = path.stat()
         except OSError:

@@ -19,7 +19,7 @@ import pandas as pd
 from roadtruth.harness.errors import InputError
 from roadtruth.harness.evaluation.scoring import COLUMNS, KEY_COLUMNS
 from roadtruth.harness.files.parsed_files import ParsedFiles
-from roadtruth.harness.files.strict_yaml import Fields, load_mapping, tracing
+from roadtruth.harness.files.strict_yaml import Fields, load_mapping
 from roadtruth.harness.jobs.compare import COMPARED
 from roadtruth.harness.signals import is_canonical
 
@@ -221,8 +221,6 @@ def load_thresholds(path: Path) -> Thresholds:
 
     The result is frozen, so every caller shares one parse while the file is unchanged.
     """
-    if tracing():  # the published schemas are traced from a reading: read, do not remember
-        return _parse_thresholds(path)
     return _THRESHOLDS.get(Path(path), lambda: _parse_thresholds(path), variant=str(path))
 
 
