@@ -45,7 +45,7 @@ def worker_hash_seed() -> str:
 
 
 @contextlib.contextmanager
-def environment(**values: str) -> Iterator[None]:
+def _environment(**values: str) -> Iterator[None]:
     """Set environment variables for the duration of the block (what a child started in it inherits)."""
     old = {k: os.environ.get(k) for k in values}
     os.environ.update(values)
@@ -73,7 +73,7 @@ def start_local_cluster_server() -> None:
         seed = worker_hash_seed()
     except ImportError:
         return
-    with environment(PYTHONHASHSEED=seed):
+    with _environment(PYTHONHASHSEED=seed):
         start_forkserver(preload=DASK_PRELOAD)
 
 
