@@ -18,12 +18,11 @@ mappings; ``roadtruth.harness.truth.scenario`` hands out a scenario with its own
 from __future__ import annotations
 
 import hashlib
+import sys
 import time
 from collections.abc import Callable, Hashable
 from pathlib import Path
 from typing import Any
-
-from roadtruth.harness.files.strict_yaml import tracing
 
 #: A file modified less than this before it was parsed is checked by content on every hit [ns]
 #: (mtime ticks are 1-10 ms on Linux; network file systems can lag by about a second).
@@ -36,6 +35,13 @@ def _digest(path: Path) -> bytes | None:
         return hashlib.blake2b(path.read_bytes(), digest_size=16).digest()
     except OSError:
         return None
+
+
+def _tracing() -> bool:
+    """``strict_yaml.tracing()``, without importing it (and YAML) here: ``roadtruth scenarios`` uses
+    this cache and reads no YAML; with the module not imported, no trace can be running."""
+    module = sys.modules.get("roadtruth.harness.files.strict_yaml")
+    return module is not None and module.tracing()
 
 
 class ParsedFiles:
@@ -58,7 +64,7 @@ class ParsedFiles:
         resolved in); results for different variants are kept apart. While a JSON Schema is traced
         from the parsers' field reads (``strict_yaml.tracing``), every call parses.
         """
-        if tracing():  # the published schemas are traced from a reading: read, do not remember
+        if _tracing():  # the published schemas are traced from a reading: read, do not remember
             return parse()
         try:
             st = path.stat()
