@@ -10,7 +10,7 @@ not being run, an option it does not accept) raise ``InputError`` before any obs
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -143,6 +143,22 @@ def long_estimates(tracks: Mapping[str, EstimateTrack]) -> pd.DataFrame:
     return est[list(ESTIMATE_COLUMNS)]
 
 
+def measurement_times(measurements: pd.DataFrame) -> np.ndarray:
+    """The ``t_s`` column as the (N,) float array every observer is run on [s]."""
+    return measurements["t_s"].to_numpy(dtype=float)
+
+
+def observer_inputs(measurements: pd.DataFrame, inputs: Sequence[str]) -> np.ndarray:
+    """The (N, len(inputs)) float array of an observer's input columns, in its order.
+
+    This and :func:`measurement_times` are the one place observer inputs are made: a numba kernel
+    is compiled per memory layout and per writeable flag of its arguments (a column of a frame is a
+    read-only view), so the design warm-up (:mod:`roadtruth.harness.jobs.design_warmup`) makes its
+    two-sample inputs here to compile what the real run will call.
+    """
+    return measurements[list(inputs)].to_numpy(dtype=float)
+
+
 def run_observer_tracks(measurements: pd.DataFrame, vehicle: VehicleParams, names: list[str], *,
                         options: Mapping[str, Mapping[str, Any]] | None = None,
                         timeout_s: float | None = None,
@@ -171,7 +187,7 @@ def run_observer_tracks(measurements: pd.DataFrame, vehicle: VehicleParams, name
             # The caller's options are checked here (unknown keys, bad values raise InputError, which
             # is the caller's mistake); running the observer happens in the host.
             cls(vehicle, **dict(options[n]))
-    t = measurements["t_s"].to_numpy(dtype=float)
+    t = measurement_times(measurements)
     budget = default_observer_timeout(float(t[-1] - t[0]) if len(t) else 0.0) if timeout_s is None else float(timeout_s)
     tracks: dict[str, EstimateTrack] = {}
     runs: dict[str, ObserverRun] = {}
@@ -182,7 +198,7 @@ def run_observer_tracks(measurements: pd.DataFrame, vehicle: VehicleParams, name
         if missing:
             runs[name] = ObserverRun(f"skipped: missing {missing[0]}", math.nan, False, "", 0)
             continue
-        Y = measurements[list(cls.inputs)].to_numpy(dtype=float)
+        Y = observer_inputs(measurements, cls.inputs)
         reply = run_isolated(cls, vehicle, options.get(name, {}), t, Y, budget)
         if reply.error:
             runs[name] = ObserverRun(f"error: {reply.error}", math.nan, reply.certified, reply.design_reason, 0,

@@ -313,6 +313,7 @@ class ObserverHost:
         self.requests = Connection(req_w, readable=False)
         self.replies = Connection(rep_r, writable=False)
         self.ready = False
+        self.killed = False
 
     def alive(self) -> bool:
         return self.process.poll() is None
@@ -351,6 +352,7 @@ class ObserverHost:
         return reply
 
     def kill(self) -> None:
+        self.killed = True
         with contextlib.suppress(OSError):
             self.process.kill()
         with contextlib.suppress(subprocess.TimeoutExpired):
@@ -372,11 +374,14 @@ class ObserverHost:
 
 
 _idle: list[ObserverHost] = []
+_busy = 0  # hosts of this process running a request now (they are idle again when it returns)
 _lock = threading.Lock()
 
 
 def _acquire() -> ObserverHost:
+    global _busy
     with _lock:
+        _busy += 1
         while _idle:
             host = _idle.pop()
             if host.owner == os.getpid() and host.alive():
@@ -386,19 +391,22 @@ def _acquire() -> ObserverHost:
     return ObserverHost()
 
 
-def _release(host: ObserverHost) -> None:
+def _release(host: ObserverHost, *, busy: bool = True) -> None:
+    global _busy
     with _lock:
         _idle.append(host)
+        _busy -= busy
 
 
 def prestart(count: int = 1) -> None:
-    """Start hosts in the background until ``count`` are idle, so their imports overlap other work
-    (``count`` > 1: one per thread that will run observers at the same time; started here, from
-    the calling thread, so a main thread arms their parent-death signal)."""
+    """Start hosts in the background until this process has ``count`` (idle or running a request),
+    so their imports overlap other work (``count`` > 1: one per thread that will run observers at
+    the same time; started here, from the calling thread, so a main thread arms their parent-death
+    signal)."""
     with _lock:
-        idle = sum(1 for h in _idle if h.owner == os.getpid() and h.alive())
-    for _ in range(max(0, count - idle)):
-        _release(ObserverHost())
+        have = _busy + sum(1 for h in _idle if h.owner == os.getpid() and h.alive())
+    for _ in range(max(0, count - have)):
+        _release(ObserverHost(), busy=False)
 
 
 def shutdown() -> None:
@@ -412,8 +420,9 @@ def shutdown() -> None:
 
 def _forget_after_fork() -> None:
     # A forked child must not talk to its parent's hosts: the pipes belong to the parent.
-    global _lock
+    global _lock, _busy
     _lock = threading.Lock()
+    _busy = 0
     for h in _idle:
         h.close_pipes()
     _idle.clear()
@@ -457,33 +466,58 @@ def run_isolated(cls: type, vehicle: Any, options: Mapping[str, Any], t: np.ndar
     for attempt in (1, 2):
         host = _acquire()
         try:
-            try:
-                host.wait_ready(STARTUP_TIMEOUT_S)
-            except HostDied as died:
-                host.kill()
-                return ObserverReply.failed(f"observer process failed to start ({died})")
-            except HostTimeout:
-                host.kill()
-                return ObserverReply.failed(f"observer process did not start within {STARTUP_TIMEOUT_S:g} s")
-            try:
-                reply = host.run(payload, timeout_s)
-            except (BrokenPipeError, ConnectionResetError):
-                host.kill()  # the host was gone before it took the request: not this observer's doing
-                if attempt == 1:
-                    continue
-                return ObserverReply.failed("observer process crashed before taking the request")
-            except HostDied as died:
-                host.kill()
-                return ObserverReply.failed(f"observer process crashed ({died})")
-            except HostTimeout:
-                host.kill()
-                return ObserverReply.failed(f"timed out after {timeout_s:g} s")
-        except BaseException:  # Ctrl-C (or anything else here): the host must not outlive the run
-            host.kill()
-            raise
-        _release(host)
-        return reply
+            return _run_on(host, payload, timeout_s, attempt)
+        except _Retry:
+            continue
+        finally:
+            _done_with(host)
     raise AssertionError("unreachable")
+
+
+class _Retry(Exception):
+    """The host was gone before it took the request: run it once more on another host."""
+
+
+def _done_with(host: ObserverHost) -> None:
+    """The request on ``host`` is over: idle again if it lives, forgotten (it was killed) if not."""
+    global _busy
+    if not host.killed and host.alive():
+        _release(host)
+    else:
+        with _lock:
+            _busy -= 1
+
+
+def _run_on(host: ObserverHost, payload: bytes, timeout_s: float, attempt: int) -> ObserverReply:
+    """One attempt of :func:`run_isolated` on ``host``; a host that failed is killed here."""
+    try:
+        try:
+            host.wait_ready(STARTUP_TIMEOUT_S)
+        except HostDied as died:
+            host.kill()
+            return ObserverReply.failed(f"observer process failed to start ({died})")
+        except HostTimeout:
+            host.kill()
+            return ObserverReply.failed(f"observer process did not start within {STARTUP_TIMEOUT_S:g} s")
+        try:
+            reply = host.run(payload, timeout_s)
+        except (BrokenPipeError, ConnectionResetError):
+            host.kill()  # the host was gone before it took the request: not this observer's doing
+            if attempt == 1:
+                raise _Retry from None
+            return ObserverReply.failed("observer process crashed before taking the request")
+        except HostDied as died:
+            host.kill()
+            return ObserverReply.failed(f"observer process crashed ({died})")
+        except HostTimeout:
+            host.kill()
+            return ObserverReply.failed(f"timed out after {timeout_s:g} s")
+    except _Retry:
+        raise
+    except BaseException:  # Ctrl-C (or anything else here): the host must not outlive the run
+        host.kill()
+        raise
+    return reply
 
 
 if __name__ == "__main__":

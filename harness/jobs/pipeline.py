@@ -29,7 +29,7 @@ import shutil  # noqa: E402
 import time  # noqa: E402
 import traceback  # noqa: E402
 import zlib  # noqa: E402
-from collections.abc import Iterable, Mapping, Sequence  # noqa: E402
+from collections.abc import Callable, Iterable, Mapping, Sequence  # noqa: E402
 from concurrent.futures import Future, as_completed  # noqa: E402
 from dataclasses import dataclass, field  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -175,10 +175,11 @@ def render_job(job: RenderJob) -> tuple[dict[str, Any], float]:
     return result.to_dict(), time.perf_counter() - t
 
 
-def run_scenario(task: ScenarioTask) -> ScenarioOutcome:
+def run_scenario(task: ScenarioTask, before_observers: Callable[[], None] | None = None) -> ScenarioOutcome:
     """Simulate, sense, estimate, score, write and (if ``task.render``) render one scenario into
-    ``task.run_dir / task.name``. Expected failures become statuses; nothing here raises for them."""
-    outcome, job = compute_scenario(task)
+    ``task.run_dir / task.name``. Expected failures become statuses; nothing here raises for them.
+    ``before_observers``: see :func:`evaluate_scenario`."""
+    outcome, job = compute_scenario(task, before_observers=before_observers)
     if job is not None:
         entry, seconds = render_job(job)
         outcome.entry["render"] = entry
@@ -216,13 +217,16 @@ def evaluate_scenario(sc: Any, vehicle: Any, observers: Sequence[str], sim_seed:
                       sensors: str | None = None, faults: str | None = None,
                       timings: dict[str, float] | None = None,
                       observer_timeout_s: float | None = None,
-                      observer_options: dict[str, dict[str, Any]] | None = None) -> Stages:
+                      observer_options: dict[str, dict[str, Any]] | None = None,
+                      before_observers: Callable[[], None] | None = None) -> Stages:
     """Simulate, sense and estimate one prepared scenario (the shared core of ``run`` and ``stress``).
 
     Bad input (``InputError``) propagates; any other crash is returned as a status, so one broken
     scenario never stops a suite. ``timings`` (if given) receives the simulate/sensors/observers seconds.
     ``observer_timeout_s``: time budget of each observer [s] (see ``roadtruth.harness.evaluation.estimate.run_observers``);
-    ``observer_options``: observer -> {option: value}, checked (``roadtruth.harness.evaluation.observer_options``).
+    ``observer_options``: observer -> {option: value}, checked (``roadtruth.harness.evaluation.observer_options``);
+    ``before_observers``: called after the sensors, before the first observer runs (a serial run
+    waits there for its warm-up, :class:`roadtruth.harness.jobs.design_warmup.BackgroundWarmup`).
     """
     from roadtruth.harness.evaluation import observer_host
     from roadtruth.harness.evaluation.estimate import run_observer_tracks
@@ -256,6 +260,8 @@ def evaluate_scenario(sc: Any, vehicle: Any, observers: Sequence[str], sim_seed:
         meas = emulate(truth.frame, vehicle, sensor_config(sc, sensors, faults), sensor_seed,
                        outages=sc.outages, lane_gaps=sc.lane_gaps)
         timings["sensors"] = time.perf_counter() - t
+        if before_observers is not None:
+            before_observers()
         t = time.perf_counter()
         tracks, runs = run_observer_tracks(meas.frame, vehicle, list(observers), timeout_s=observer_timeout_s,
                                            options=observer_options)
@@ -268,11 +274,13 @@ def evaluate_scenario(sc: Any, vehicle: Any, observers: Sequence[str], sim_seed:
     return Stages(truth, meas, tracks, runs)
 
 
-def compute_scenario(task: ScenarioTask, *, failed: str | None = None) -> tuple[ScenarioOutcome, RenderJob | None]:
+def compute_scenario(task: ScenarioTask, *, failed: str | None = None,
+                     before_observers: Callable[[], None] | None = None) -> tuple[ScenarioOutcome, RenderJob | None]:
     """Everything but the render; returns the render job (None if ``task.render`` is off).
 
     ``failed``: an ``error: …`` status that stands for the stages instead of running them (a worker
-    process that died holding the scenario, see :func:`crashed_scenario`).
+    process that died holding the scenario, see :func:`crashed_scenario`); ``before_observers``: see
+    :func:`evaluate_scenario`.
     """
     from roadtruth.harness.evaluation.scoring import score
     from roadtruth.harness.report.render import RenderSource
@@ -299,7 +307,7 @@ def compute_scenario(task: ScenarioTask, *, failed: str | None = None) -> tuple[
 
     st = (evaluate_scenario(sc, veh, task.observers, sim_seed, sensor_seed, sensors=task.sensors,
                             faults=task.faults, timings=timings, observer_timeout_s=task.observer_timeout_s,
-                            observer_options=task.observer_options)
+                            observer_options=task.observer_options, before_observers=before_observers)
           if failed is None else
           Stages(FailedTruth(status=failed), None, {}, None, failed))
     truth = st.truth
@@ -418,14 +426,12 @@ def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress) -> Iter
     """
     if jobs > 1 and len(tasks) > 1:
         with process_pool(run_scenario, min(jobs, len(tasks))) as pool:
-            from roadtruth.harness.files.disk_cache import DesignWarmup, presolve_designs
+            from roadtruth.harness.jobs.design_warmup import presolve_designs
             from roadtruth.harness.report.builder import warm_up
 
             warm_up()  # fits in the wait for the workers' server to finish its preload, not at the end
             pool.start_workers()  # one solves the designs every worker needs, once; the others start meanwhile
-            presolve_designs(pool.submit_call, DesignWarmup.of(
-                [(t.name, t.vehicle, t.friction) for t in tasks], [o for t in tasks for o in t.observers],
-                tasks[0].observer_options, tasks[0].observer_timeout_s))
+            presolve_designs(pool.submit_call, _warmup(tasks), hosts=min(jobs, len(tasks)))
             futures = {pool.submit(task): task for task in tasks}
             for fut in as_completed(futures):
                 try:
@@ -437,16 +443,22 @@ def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress) -> Iter
                     progress.item(_render_line(o))
                 yield o
         return
+    from roadtruth.harness.jobs.design_warmup import BackgroundWarmup
+
+    # On a fresh install the observers' kernels compile on both cores while the first scenario
+    # simulates, instead of one after the other in one observer host.
+    warm = BackgroundWarmup.start(_warmup(tasks), hosts=2) if tasks else None
+    ready = warm.wait if warm is not None else None
     if not any(t.render for t in tasks):
         for task in tasks:
-            o = run_scenario(task)
+            o = run_scenario(task, before_observers=ready)
             progress.item(_line(o))
             yield o
         return
     with process_pool(render_job, min(2, len(tasks)), what="renderer") as renderer:
         pending: list[tuple[ScenarioOutcome, Future | None]] = []
         for task in tasks:
-            o, job = compute_scenario(task)
+            o, job = compute_scenario(task, before_observers=ready)
             progress.item(_line(o))
             pending.append((o, renderer.submit(job) if job is not None else None))
         for o, fut in pending:
@@ -461,6 +473,14 @@ def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress) -> Iter
                 o.entry["timings_s"]["render"] = round(seconds, 4)
                 progress.item(_render_line(o))
             yield o
+
+
+def _warmup(tasks: Sequence[ScenarioTask]) -> Any:
+    """The designs and kernels the tasks need (:class:`roadtruth.harness.jobs.design_warmup.DesignWarmup`)."""
+    from roadtruth.harness.jobs.design_warmup import DesignWarmup
+
+    return DesignWarmup.of([(t.name, t.vehicle, t.friction) for t in tasks], [o for t in tasks for o in t.observers],
+                           tasks[0].observer_options if tasks else None, tasks[0].observer_timeout_s if tasks else None)
 
 
 def check_log_rate(hz: float, dt_s: float = 0.001) -> None:

@@ -26,7 +26,7 @@ import math  # noqa: E402
 import time  # noqa: E402
 import traceback  # noqa: E402
 import uuid  # noqa: E402
-from collections.abc import Iterator  # noqa: E402
+from collections.abc import Callable, Iterator  # noqa: E402
 from concurrent.futures import as_completed  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -198,8 +198,9 @@ def run_cases(cases: list[StressCase]) -> list[CaseResult]:
     return [run_case(c) for c in cases]
 
 
-def run_case(case: StressCase) -> CaseResult:
+def run_case(case: StressCase, before_observers: Callable[[], None] | None = None) -> CaseResult:
     """Simulate, sense, estimate and score one case; never raises (a crash becomes ``error: …`` rows).
+    ``before_observers``: see :func:`roadtruth.harness.jobs.pipeline.evaluate_scenario`.
 
     The stages are :func:`roadtruth.harness.jobs.pipeline.evaluate_scenario`, shared with ``run``; a sweep keeps
     metrics only and writes no per-case files.
@@ -226,7 +227,8 @@ def run_case(case: StressCase) -> CaseResult:
         mass = veh.mass_kg
         _, sim_seed, sensor_seed = scenario_seeds(sc.seed, case.scenario, case.seed)
         st = evaluate_scenario(sc, veh, case.observers, sim_seed, sensor_seed, faults=faults,
-                               observer_timeout_s=case.observer_timeout_s, observer_options=case.observer_options)
+                               observer_timeout_s=case.observer_timeout_s, observer_options=case.observer_options,
+                               before_observers=before_observers)
         truth, tracks, tb = st.truth, dict(st.tracks), st.traceback
         if st.runs is not None:
             runs = st.runs
@@ -293,7 +295,7 @@ def _crashed_case(case: StressCase, crash: Exception) -> CaseResult:
 
 def _warmup(cases: list[StressCase]) -> Any:
     """The designs the cases need (:class:`roadtruth.harness.files.disk_cache.DesignWarmup`), solved once up front."""
-    from roadtruth.harness.files.disk_cache import DesignWarmup
+    from roadtruth.harness.jobs.design_warmup import DesignWarmup
 
     c0 = cases[0]
     return DesignWarmup.of([(c.scenario, None, None if c.friction == SCENARIO_FRICTION else c.friction)
@@ -315,13 +317,15 @@ def dask_batches(cases: list[StressCase], workers: int) -> list[list[StressCase]
 def _run_local(cases: list[StressCase], jobs: int) -> Iterator[CaseResult]:
     """Run the cases in this process or in ``jobs`` supervised worker processes (any order); a worker
     that dies costs only its case (``error: worker crashed (signal N)``) and is replaced."""
-    from roadtruth.harness.files.disk_cache import presolve_designs
+    from roadtruth.harness.jobs.design_warmup import BackgroundWarmup, presolve_designs
     from roadtruth.harness.jobs.pipeline import process_pool
     from roadtruth.harness.jobs.worker_pool import WorkerCrashed
 
     if jobs <= 1 or len(cases) <= 1:
+        # On a fresh install the kernels compile on both cores while the first case simulates.
+        warm = BackgroundWarmup.start(_warmup(cases), hosts=2) if cases else None
         for c in cases:
-            yield run_case(c)
+            yield run_case(c, before_observers=warm.wait if warm is not None else None)
         return
     with process_pool(run_case, min(jobs, len(cases))) as pool:
         # This process would only wait for the workers' server to finish its preload: the page's
@@ -330,7 +334,7 @@ def _run_local(cases: list[StressCase], jobs: int) -> Iterator[CaseResult]:
 
         warm_up()
         pool.start_workers()  # the others import while one solves the designs all of them need
-        presolve_designs(pool.submit_call, _warmup(cases))
+        presolve_designs(pool.submit_call, _warmup(cases), hosts=min(jobs, len(cases)))
         # One case per task: a round trip costs well under a millisecond against ~0.1 s per case, and
         # single cases keep the workers evenly loaded to the end and a crash costs one case.
         futures = {pool.submit(c): c for c in cases}
@@ -351,7 +355,7 @@ def _run_dask(cases: list[StressCase], address: str, jobs: int, info: dict[str, 
     except ImportError:
         raise StressSpecError("--dask needs the dask and distributed packages "
                               "(pip install 'dask[distributed]')", field="--dask") from None
-    from roadtruth.harness.files.disk_cache import presolve_designs
+    from roadtruth.harness.jobs.design_warmup import presolve_designs
 
     t = time.perf_counter()
     cluster = None
@@ -368,7 +372,9 @@ def _run_dask(cases: list[StressCase], address: str, jobs: int, info: dict[str, 
     try:
         info["startup_s"] = round(time.perf_counter() - t, 3)
         info["workers"] = len(client.scheduler_info().get("workers", {}))
-        presolve_designs(lambda fn, arg: client.submit(fn, arg, pure=False), _warmup(cases))
+        # A local cluster's workers share this machine's cores; a remote worker's cores are unknown.
+        presolve_designs(lambda fn, arg: client.submit(fn, arg, pure=False), _warmup(cases),
+                         hosts=jobs if cluster is not None else 1)
         futures = client.map(run_cases, dask_batches(cases, info["workers"] or jobs), pure=False)
         for fut in dask_completed(futures):
             yield from fut.result()
