@@ -102,23 +102,29 @@ def solve_designs(warmup: DesignWarmup, hosts: int = 1) -> int:
                                    observer_inputs(frame, cls.inputs), warmup.timeout_s)
 
     pairs = [(v, o) for v in vehicles.values() for o in warmup.observers]
-    hosts = max(1, min(hosts, len(pairs)))
+    # The variants of a family share its kernels: warmed by one host, one after the other, the
+    # first compiles them and the others load them, where two hosts would compile them side by side.
+    families: dict[str, list[tuple[Any, str]]] = {}
+    for v, o in pairs:
+        families.setdefault(_family(o), []).append((v, o))
+    hosts = max(1, min(hosts, len(families)))
     observer_host.prestart(hosts)
     if hosts == 1:
         for v, o in pairs:
             design(v, o)
         return len(pairs)
-    # A shared queue, not a fixed split: one observer compiles in 0.1 s, another in 15 s.
-    queue: Iterator[tuple[Any, str]] = iter(pairs)
+    # A shared queue, not a fixed split: one family compiles in 0.1 s, another in 15 s.
+    queue: Iterator[list[tuple[Any, str]]] = iter(families.values())
     lock = threading.Lock()
 
     def drain() -> None:
         while True:
             with lock:
-                pair = next(queue, None)
-            if pair is None:
+                family = next(queue, None)
+            if family is None:
                 return
-            design(*pair)
+            for pair in family:
+                design(*pair)
 
     # Daemon threads (not a ThreadPoolExecutor, whose threads the interpreter joins at exit): after
     # Ctrl-C the command ends now, and the hosts, whose parent then dies, end with it.
@@ -128,6 +134,16 @@ def solve_designs(warmup: DesignWarmup, hosts: int = 1) -> int:
     for th in threads:
         th.join()
     return len(pairs)
+
+
+def _family(observer: str) -> str:
+    """The module of an observer's class (its family file), or its name if it does not load."""
+    from roadtruth.observers.registry import observer_class
+
+    try:
+        return observer_class(observer).__module__
+    except Exception:  # noqa: BLE001 - it fails in its task
+        return observer
 
 
 def warmup_key(warmup: DesignWarmup) -> str:
