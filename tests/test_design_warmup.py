@@ -18,7 +18,7 @@ import pytest
 
 from roadtruth.harness.evaluation import observer_host
 from roadtruth.harness.files.disk_cache import CACHE_ENV
-from roadtruth.harness.jobs.design_warmup import WARMUP_KIND, BackgroundWarmup, DesignWarmup, warmed
+from roadtruth.harness.jobs.design_warmup import WARMUP_KIND, BackgroundWarmup, DesignWarmup, warmup_needed
 from roadtruth.harness.truth.vehicle import load_vehicle
 from roadtruth.observers import registry
 
@@ -130,16 +130,16 @@ def test_a_host_running_a_request_counts_as_started_and_a_failed_one_is_forgotte
 def test_a_warm_up_is_recorded_once_and_a_warm_cache_starts_none(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv(CACHE_ENV, str(tmp_path / "cache"))
     w = DesignWarmup.of([("step_steer", None, None)], ["kf_bicycle", "open_loop_bicycle"])
-    assert warmed(w) is not None
+    assert warmup_needed(w) is not None
     bg = BackgroundWarmup.start(w, hosts=2)
     assert bg is not None
     bg.wait()
     bg.wait()
     assert len(list((tmp_path / "cache" / WARMUP_KIND).glob("*.json"))) == 1
-    assert warmed(w) is None and BackgroundWarmup.start(w) is None
+    assert warmup_needed(w) is None and BackgroundWarmup.start(w) is None
     # another set of observers, or another numba cache, is another warm-up
-    assert warmed(DesignWarmup.of([("step_steer", None, None)], ["kf_bicycle"])) is not None
+    assert warmup_needed(DesignWarmup.of([("step_steer", None, None)], ["kf_bicycle"])) is not None
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba"))
-    assert warmed(w) is not None
-    assert warmed(DesignWarmup.of([], ["kf_bicycle"])) is None  # nothing to warm
+    assert warmup_needed(w) is not None
+    assert warmup_needed(DesignWarmup.of([], ["kf_bicycle"])) is None  # nothing to warm
     observer_host.shutdown()

@@ -391,11 +391,9 @@ def _acquire() -> ObserverHost:
     return ObserverHost()
 
 
-def _release(host: ObserverHost, *, busy: bool = True) -> None:
-    global _busy
+def _release(host: ObserverHost) -> None:
     with _lock:
         _idle.append(host)
-        _busy -= busy
 
 
 def prestart(count: int = 1) -> None:
@@ -406,7 +404,7 @@ def prestart(count: int = 1) -> None:
     with _lock:
         have = _busy + sum(1 for h in _idle if h.owner == os.getpid() and h.alive())
     for _ in range(max(0, count - have)):
-        _release(ObserverHost(), busy=False)
+        _release(ObserverHost())
 
 
 def shutdown() -> None:
@@ -466,58 +464,43 @@ def run_isolated(cls: type, vehicle: Any, options: Mapping[str, Any], t: np.ndar
     for attempt in (1, 2):
         host = _acquire()
         try:
-            return _run_on(host, payload, timeout_s, attempt)
-        except _Retry:
-            continue
+            try:
+                host.wait_ready(STARTUP_TIMEOUT_S)
+            except HostDied as died:
+                host.kill()
+                return ObserverReply.failed(f"observer process failed to start ({died})")
+            except HostTimeout:
+                host.kill()
+                return ObserverReply.failed(f"observer process did not start within {STARTUP_TIMEOUT_S:g} s")
+            try:
+                reply = host.run(payload, timeout_s)
+            except (BrokenPipeError, ConnectionResetError):
+                host.kill()  # the host was gone before it took the request: not this observer's doing
+                if attempt == 1:
+                    continue
+                return ObserverReply.failed("observer process crashed before taking the request")
+            except HostDied as died:
+                host.kill()
+                return ObserverReply.failed(f"observer process crashed ({died})")
+            except HostTimeout:
+                host.kill()
+                return ObserverReply.failed(f"timed out after {timeout_s:g} s")
+        except BaseException:  # Ctrl-C (or anything else here): the host must not outlive the run
+            host.kill()
+            raise
         finally:
             _done_with(host)
+        return reply
     raise AssertionError("unreachable")
 
 
-class _Retry(Exception):
-    """The host was gone before it took the request: run it once more on another host."""
-
-
 def _done_with(host: ObserverHost) -> None:
-    """The request on ``host`` is over: idle again if it lives, forgotten (it was killed) if not."""
+    """The request on ``host`` is over: idle again if it lives, forgotten if it was killed."""
     global _busy
-    if not host.killed and host.alive():
-        _release(host)
-    else:
-        with _lock:
-            _busy -= 1
-
-
-def _run_on(host: ObserverHost, payload: bytes, timeout_s: float, attempt: int) -> ObserverReply:
-    """One attempt of :func:`run_isolated` on ``host``; a host that failed is killed here."""
-    try:
-        try:
-            host.wait_ready(STARTUP_TIMEOUT_S)
-        except HostDied as died:
-            host.kill()
-            return ObserverReply.failed(f"observer process failed to start ({died})")
-        except HostTimeout:
-            host.kill()
-            return ObserverReply.failed(f"observer process did not start within {STARTUP_TIMEOUT_S:g} s")
-        try:
-            reply = host.run(payload, timeout_s)
-        except (BrokenPipeError, ConnectionResetError):
-            host.kill()  # the host was gone before it took the request: not this observer's doing
-            if attempt == 1:
-                raise _Retry from None
-            return ObserverReply.failed("observer process crashed before taking the request")
-        except HostDied as died:
-            host.kill()
-            return ObserverReply.failed(f"observer process crashed ({died})")
-        except HostTimeout:
-            host.kill()
-            return ObserverReply.failed(f"timed out after {timeout_s:g} s")
-    except _Retry:
-        raise
-    except BaseException:  # Ctrl-C (or anything else here): the host must not outlive the run
-        host.kill()
-        raise
-    return reply
+    with _lock:
+        _busy -= 1
+        if not host.killed and host.alive():
+            _idle.append(host)
 
 
 if __name__ == "__main__":

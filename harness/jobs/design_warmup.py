@@ -158,7 +158,7 @@ def warmup_key(warmup: DesignWarmup) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def warmed(warmup: DesignWarmup) -> str | None:
+def warmup_needed(warmup: DesignWarmup) -> str | None:
     """None if this cache was warmed for ``warmup`` by this code (or there is nothing to warm), else
     the key under which to record the warm-up once it is done."""
     if not warmup.observers or not warmup.scenarios:
@@ -177,10 +177,10 @@ def presolve_designs(submit: Callable[[Callable[[Any], Any], Any], Any], warmup:
     failure (even a crashed worker) is ignored.
 
     The warm-up holds every worker back until it is done, so it runs only when this cache has not
-    been warmed for the same warm-up by the same code (:func:`warmed`). ``hosts``: the number of
+    been warmed for the same warm-up by the same code (:func:`warmup_needed`). ``hosts``: the number of
     workers, whose cores would otherwise wait.
     """
-    key = warmed(warmup)
+    key = warmup_needed(warmup)
     if key is None:
         return
     try:
@@ -195,7 +195,7 @@ class BackgroundWarmup:
     starts it before its first scenario, simulates meanwhile, and calls :meth:`wait` before its
     first observer runs (else that observer would compile the kernels the warm-up is compiling).
 
-    :meth:`start` returns None when this cache is already warm (:func:`warmed`): then nothing runs.
+    :meth:`start` returns None when this cache is already warm (:func:`warmup_needed`): then nothing runs.
     """
 
     def __init__(self, warmup: DesignWarmup, key: str, hosts: int) -> None:
@@ -206,7 +206,7 @@ class BackgroundWarmup:
 
     @classmethod
     def start(cls, warmup: DesignWarmup, hosts: int = 2) -> BackgroundWarmup | None:
-        key = warmed(warmup)
+        key = warmup_needed(warmup)
         if key is None:
             return None
         from roadtruth.harness.evaluation import observer_host
@@ -214,9 +214,9 @@ class BackgroundWarmup:
 
         set_up_numba()  # before the hosts fork, so that they inherit it
         observer_host.prestart(hosts)  # from this (main) thread: see solve_designs
-        self = cls(warmup, key, hosts)
-        self._thread.start()
-        return self
+        warm = cls(warmup, key, hosts)
+        warm._thread.start()
+        return warm
 
     def _run(self) -> None:
         try:
@@ -235,4 +235,4 @@ class BackgroundWarmup:
 
 
 __all__ = ["WARMUP_KIND", "BackgroundWarmup", "DesignWarmup", "presolve_designs", "record_warmup",
-           "solve_designs", "warmed", "warmup_key"]
+           "solve_designs", "warmup_needed", "warmup_key"]

@@ -476,11 +476,11 @@ def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress) -> Iter
 
 
 def _warmup(tasks: Sequence[ScenarioTask]) -> Any:
-    """The designs and kernels the tasks need (:class:`roadtruth.harness.jobs.design_warmup.DesignWarmup`)."""
+    """The designs and kernels the tasks (one at least) need (:class:`roadtruth.harness.jobs.design_warmup.DesignWarmup`)."""
     from roadtruth.harness.jobs.design_warmup import DesignWarmup
 
     return DesignWarmup.of([(t.name, t.vehicle, t.friction) for t in tasks], [o for t in tasks for o in t.observers],
-                           tasks[0].observer_options if tasks else None, tasks[0].observer_timeout_s if tasks else None)
+                           tasks[0].observer_options, tasks[0].observer_timeout_s)
 
 
 def check_log_rate(hz: float, dt_s: float = 0.001) -> None:

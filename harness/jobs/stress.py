@@ -294,7 +294,7 @@ def _crashed_case(case: StressCase, crash: Exception) -> CaseResult:
 
 
 def _warmup(cases: list[StressCase]) -> Any:
-    """The designs the cases need (:class:`roadtruth.harness.files.disk_cache.DesignWarmup`), solved once up front."""
+    """The designs and kernels the cases need (:class:`roadtruth.harness.jobs.design_warmup.DesignWarmup`), made once up front."""
     from roadtruth.harness.jobs.design_warmup import DesignWarmup
 
     c0 = cases[0]
