@@ -498,6 +498,8 @@ _TERMINATING = tuple(s for s in (getattr(signal, "SIGTERM", None), getattr(signa
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.command in KERNEL_COMMANDS:
+        _load_shipped_kernels()
     try:
         with _termination_as_interrupt():
             return int(args.func(args))
@@ -518,6 +520,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         # Output piped into `head` and closed early: not an error of ours.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
+
+
+#: Commands that run compiled kernels (simulation, observers): they load the shipped ones.
+KERNEL_COMMANDS = frozenset({"run", "simulate", "check", "stress", "falsify", "replay"})
+
+
+def _load_shipped_kernels() -> None:
+    """Compile for the portable target of the kernels shipped with the package and add them to
+    numba's cache before numba is first used (:mod:`roadtruth.harness.files.shipped_kernels`), so a
+    fresh install's first command loads them instead of compiling them."""
+    from roadtruth.harness.files.shipped_kernels import seed_numba_cache, use_portable_target
+
+    if use_portable_target():
+        seed_numba_cache()
 
 
 def _leave(code: int) -> NoReturn:

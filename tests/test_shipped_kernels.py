@@ -1,0 +1,148 @@
+"""The compiled kernels shipped with the package serve a fresh install: the bundle matches the
+sources it was built from, a cache seeded from it runs a simulation and observers without compiling
+anything, and seeding adds entries to numba's cache without replacing any."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import numba
+import pytest
+
+from roadtruth.harness.files import shipped_kernels as sk
+from roadtruth.harness.files.disk_cache import CACHE_ENV
+
+pytestmark = pytest.mark.skipif(
+    sk.bundle_path() is None,
+    reason=f"no kernel bundle for Python {sys.version_info[0]}.{sys.version_info[1]} on "
+           f"{platform.machine()} {sys.platform} with numba {numba.__version__} (kernels compile on first use)")
+
+#: In a fresh interpreter: seed (unless told not to), then simulate a short step steer and run two
+#: observers in this process, printing which of roadtruth's functions numba compiled.
+_PROBE = r'''
+import json, sys
+from numba.core import event
+from roadtruth.harness.files.shipped_kernels import seed_numba_cache
+if sys.argv[1] == "seed":
+    r = seed_numba_cache()
+    assert r.added > 100 and r.stale == 0, r
+compiled = []
+
+class Seen(event.Listener):
+    def on_start(self, ev):
+        f = ev.data["dispatcher"].py_func
+        if f.__module__.startswith("roadtruth."):
+            compiled.append(f"{f.__module__}.{f.__qualname__}")
+
+    def on_end(self, ev):
+        pass
+
+event.register("numba:compile", Seen())
+from roadtruth.harness.evaluation import observer_host
+from roadtruth.harness.evaluation.estimate import measurement_times, observer_inputs
+from roadtruth.observers.registry import observer_class
+import roadtruth as rt
+
+sc = rt.load_scenario("step_steer")
+'''
+
+
+def _compiled(tmp_path: Path, mode: str) -> list[str]:
+    env = {**os.environ, "NUMBA_CPU_NAME": "generic", "NUMBA_CACHE_DIR": str(tmp_path / mode / "numba"),
+           CACHE_ENV: str(tmp_path / mode / "cache"), "MUJOCO_GL": "egl"}
+    out = subprocess.run([sys.executable, "-c", _PROBE + _RUN, mode], env=env, capture_output=True, text=True,
+                         timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+_RUN = r'''
+vehicle = rt.load_vehicle(sc.vehicle)
+truth = rt.simulate(sc, seed=0)
+meas = rt.emulate(truth.frame, vehicle, rt.load_sensor_config(sc.sensors, sc.sensor_overrides), seed=0)
+for o in ("kf_bicycle", "ekf_bicycle"):
+    cls = observer_class(o)
+    req = observer_host.request_for(cls, vehicle, {}, measurement_times(meas.frame),
+                                    observer_inputs(meas.frame, cls.inputs))
+    reply = observer_host.run_request(req, in_process=True)
+    assert not reply.error, reply.error
+print(json.dumps(sorted(set(compiled))))
+'''
+
+
+def test_every_entry_of_the_bundle_was_built_from_the_current_sources() -> None:
+    """A stale entry is never wrong (numba skips it) but makes the first run compile again: after
+    editing a kernel module, ``scripts/ship_kernels.py`` rebuilds the bundle."""
+    bundle = sk.bundle_path()
+    stale, functions = [], 0
+    with zipfile.ZipFile(bundle) as zf:
+        for member in (n for n in zf.namelist() if n.endswith(".nbi")):
+            functions += 1
+            rel = Path(member)
+            source = sk.PACKAGE_ROOT / rel.parent / (rel.name.split(".", 1)[0] + ".py")
+            version, stamp, overloads = sk.read_index(zf.read(member))
+            if version != numba.__version__ or stamp != sk.source_digest(source):
+                stale.append(member)
+            assert all(f"{rel.parent.as_posix()}/{name}" in zf.namelist() for name in overloads.values())
+    assert functions > 100
+    assert stale == [], f"rebuild with scripts/ship_kernels.py: {stale}"
+
+
+def test_a_seeded_cache_runs_a_simulation_and_observers_without_compiling(tmp_path: Path) -> None:
+    cold = _compiled(tmp_path, "cold")
+    assert any("simulate" in k or "tire" in k for k in cold), cold  # the probe does see compilation
+    assert any("kalman" in k for k in cold), cold
+    assert _compiled(tmp_path, "seed") == []
+
+
+def _fake_index(tmp: Path, member: str, zf: zipfile.ZipFile) -> tuple[Path, object]:
+    """An index of the same function and source holding one foreign entry, as if compiled here."""
+    version, stamp, _ = sk.read_index(zf.read(member))
+    folder = tmp / "numba" / Path(member).parent.name
+    folder.mkdir(parents=True)
+    base = Path(member).name[: -len(".nbi")]
+    (folder / f"{base}.1.nbc").write_bytes(b"compiled here")
+    (folder / Path(member).name).write_bytes(sk.index_bytes(version, stamp, {("foreign key",): f"{base}.1.nbc"}))
+    return folder, base
+
+
+def test_seeding_adds_entries_beside_existing_ones_and_is_done_once(tmp_path: Path,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("NUMBA_CPU_NAME", "generic")
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path / "cache"))
+    monkeypatch.delenv(sk.SHIPPED_ENV, raising=False)
+    monkeypatch.setattr(sk, "numba_cache_dir", lambda source: tmp_path / "numba" / source.parent.name)
+    with zipfile.ZipFile(sk.bundle_path()) as zf:
+        indexes = sorted(n for n in zf.namelist() if n.endswith(".nbi"))
+        member = next(m for m in indexes if "/tire." in m or m.split("/")[-1].startswith("tire."))
+        folder, base = _fake_index(tmp_path, member, zf)
+        shipped = sk.read_index(zf.read(member))[2]
+    first = sk.seed_numba_cache()
+    assert first.stale == 0 and first.present == 0 and first.added >= len(indexes), first
+    _, _, merged = sk.read_index((folder / Path(member).name).read_bytes())
+    assert merged[("foreign key",)] == f"{base}.1.nbc"
+    assert (folder / f"{base}.1.nbc").read_bytes() == b"compiled here"  # never replaced
+    assert set(merged) == {("foreign key",), *shipped} and len(set(merged.values())) == len(merged)
+    assert sk.seed_numba_cache().reason == "seeded before"
+    (folder / Path(member).name).unlink()  # numba's cache cleared by hand: seeded again, the rest kept
+    again = sk.seed_numba_cache()
+    assert again.added == len(shipped) and again.present == first.added - len(shipped), again
+
+
+def test_the_portable_target_is_left_to_the_user(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(sk.SHIPPED_ENV, "0")
+    monkeypatch.delenv("NUMBA_CPU_NAME", raising=False)
+    assert not sk.use_portable_target() and "NUMBA_CPU_NAME" not in os.environ
+    assert sk.seed_numba_cache().reason == f"{sk.SHIPPED_ENV} is off"
+    monkeypatch.delenv(sk.SHIPPED_ENV)
+    monkeypatch.setenv("NUMBA_CPU_NAME", "znver3")
+    assert not sk.use_portable_target()
+    assert "not 'generic'" in sk.seed_numba_cache().reason
+    monkeypatch.delenv("NUMBA_CPU_NAME")
+    assert not sk.use_portable_target()  # numba is imported here: too late to choose its target
