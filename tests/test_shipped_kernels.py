@@ -24,7 +24,8 @@ pytestmark = pytest.mark.skipif(
            f"{platform.machine()} {sys.platform} with numba {numba.__version__} (kernels compile on first use)")
 
 #: In a fresh interpreter: seed (unless told not to), then simulate a short step steer and run two
-#: observers in this process, printing which of roadtruth's functions numba compiled.
+#: observers in this process, printing which of roadtruth's functions numba compiled and a digest of
+#: the truth and the estimates.
 _PROBE = r'''
 import json, sys
 from numba.core import event
@@ -53,26 +54,36 @@ sc = rt.load_scenario("step_steer")
 '''
 
 
-def _compiled(tmp_path: Path, mode: str) -> list[str]:
-    env = {**os.environ, "NUMBA_CPU_NAME": "generic", "NUMBA_CACHE_DIR": str(tmp_path / mode / "numba"),
-           CACHE_ENV: str(tmp_path / mode / "cache"), "MUJOCO_GL": "egl"}
+def _compiled(tmp_path: Path, mode: str) -> tuple[list[str], str]:
+    """(roadtruth functions compiled, digest of the results); "cold" compiles for the host CPU."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / mode / "numba"), CACHE_ENV: str(tmp_path / mode / "cache"),
+           "MUJOCO_GL": "egl"}
+    env.pop("NUMBA_CPU_NAME", None)
+    if mode == "seed":
+        env["NUMBA_CPU_NAME"] = "generic"
     out = subprocess.run([sys.executable, "-c", _PROBE + _RUN, mode], env=env, capture_output=True, text=True,
                          timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    compiled, digest = json.loads(out.stdout.strip().splitlines()[-1])
+    return compiled, digest
 
 
 _RUN = r'''
 vehicle = rt.load_vehicle(sc.vehicle)
 truth = rt.simulate(sc, seed=0)
 meas = rt.emulate(truth.frame, vehicle, rt.load_sensor_config(sc.sensors, sc.sensor_overrides), seed=0)
+import hashlib
+digest = hashlib.sha256(truth.frame.to_numpy().tobytes())
 for o in ("kf_bicycle", "ekf_bicycle"):
     cls = observer_class(o)
     req = observer_host.request_for(cls, vehicle, {}, measurement_times(meas.frame),
                                     observer_inputs(meas.frame, cls.inputs))
     reply = observer_host.run_request(req, in_process=True)
     assert not reply.error, reply.error
-print(json.dumps(sorted(set(compiled))))
+    for part in (reply.track.x, reply.track.var):
+        if part is not None:
+            digest.update(part.tobytes())
+print(json.dumps([sorted(set(compiled)), digest.hexdigest()]))
 '''
 
 
@@ -95,10 +106,12 @@ def test_every_entry_of_the_bundle_was_built_from_the_current_sources() -> None:
 
 
 def test_a_seeded_cache_runs_a_simulation_and_observers_without_compiling(tmp_path: Path) -> None:
-    cold = _compiled(tmp_path, "cold")
+    """...and the portable code gives the host code's results bit for bit (no fast-math: LLVM may
+    not reassociate or fuse floating-point operations on either target)."""
+    cold, host_digest = _compiled(tmp_path, "cold")
     assert any("simulate" in k or "tire" in k for k in cold), cold  # the probe does see compilation
     assert any("kalman" in k for k in cold), cold
-    assert _compiled(tmp_path, "seed") == []
+    assert _compiled(tmp_path, "seed") == ([], host_digest)
 
 
 def _fake_index(tmp: Path, member: str, zf: zipfile.ZipFile) -> tuple[Path, object]:
