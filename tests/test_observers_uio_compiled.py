@@ -160,4 +160,8 @@ def test_pade_step_equals_the_matrix_exponential(name: str) -> None:
         want = (expm(M) @ np.r_[z, 1.0, 0.0])[:n]
         got = z.copy()
         affine_step_pade(got, Fb, Gb, c, w0, w1, h, d, work, piv)
-        assert np.abs(got - want).max() <= 1e-13 * np.abs(want).max(), h
+        # At h = 0.05 the augmented matrix has a 1-norm near 8e3: scipy's result and the compiled
+        # step then each sit ~5e-14 (relative) from an extended-precision exponential, on either
+        # side depending on the machine's BLAS kernels. A dropped or mis-signed Pade term is off by
+        # far more than 1e-12.
+        assert np.abs(got - want).max() <= 1e-12 * np.abs(want).max(), h
