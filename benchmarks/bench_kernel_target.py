@@ -9,7 +9,9 @@ unless ``ROADTRUTH_SHIPPED_KERNELS=0``. This runs ``bench_observers.py --no-desi
 ``--rounds`` times, each target with its own numba cache (empty at first: the first round
 compiles, several minutes), and prints the best over rounds of the median us/step of every
 observer under both with their ratio (for those of 1 us or more: the table is printed to 0.1 us),
-and the simulation loop's.
+and the simulation loop's. Last, it runs the default suite (``roadtruth run --no-render``) under
+both targets and compares every file the two runs wrote, byte for byte (``timings.json`` and the
+``us_per_step`` column of ``metrics.csv`` measure the machine and are left out).
 """
 
 from __future__ import annotations
@@ -66,6 +68,7 @@ def main() -> None:
                     obs[target][name] = min(us, obs[target].get(name, us))
                 us = _loop_us(_child("bench_simulate.py", ["--repeats", str(a.runs), "--seconds", "20"], target, cache))
                 loop[target] = min(us, loop.get(target, us))
+        differ = _compare_runs(Path(tmp))
     print(f"median us/step, {a.seconds:g} s at 100 Hz ({a.runs} runs; best of {a.rounds} rounds); portable = NUMBA_CPU_NAME=generic, "
           f"host = {os.uname().machine} code for this CPU")
     print(f"{'kernel':<38} {'portable':>9} {'host':>9} {'ratio':>6}")
@@ -80,6 +83,37 @@ def main() -> None:
           f"{loop['generic'] / loop['host']:6.2f}")
     total_g, total_h = sum(obs["generic"].values()), sum(obs["host"].values())
     print(f"all observers together: {total_g:.1f} vs {total_h:.1f} us/step ({total_g / total_h:.2f}x)")
+    print("default suite, every file of the two runs: " + ("byte-identical" if not differ else
+                                                           "DIFFERENT: " + ", ".join(differ)))
+
+
+def _compare_runs(tmp: Path) -> list[str]:
+    """Files of ``roadtruth run --no-render`` that differ between the two targets."""
+    import pandas as pd
+
+    for target in ("generic", "host"):
+        env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp / target), "ROADTRUTH_SHIPPED_KERNELS": "0",
+               "ROADTRUTH_CACHE": str(tmp / "cache"), "MUJOCO_GL": "egl"}
+        env.pop("NUMBA_CPU_NAME", None)
+        if target == "generic":
+            env["NUMBA_CPU_NAME"] = "generic"
+        subprocess.run([sys.executable, "-m", "roadtruth.harness.cli", "run", "--no-render", "--out",
+                        str(tmp / f"run-{target}")], env=env, check=True, capture_output=True)
+    a, b = tmp / "run-generic", tmp / "run-host"
+    files = sorted({p.relative_to(a) for p in a.rglob("*") if p.is_file()} |
+                   {p.relative_to(b) for p in b.rglob("*") if p.is_file()})
+    differ = []
+    for rel in files:
+        if rel.name == "timings.json":
+            continue
+        if not (a / rel).is_file() or not (b / rel).is_file():
+            differ.append(str(rel))
+        elif rel.name == "metrics.csv":
+            if not pd.read_csv(a / rel).drop(columns="us_per_step").equals(pd.read_csv(b / rel).drop(columns="us_per_step")):
+                differ.append(str(rel))
+        elif (a / rel).read_bytes() != (b / rel).read_bytes():
+            differ.append(str(rel))
+    return differ
 
 
 if __name__ == "__main__":

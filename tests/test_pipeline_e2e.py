@@ -60,6 +60,9 @@ def test_every_file_exists_and_is_well_formed(runs: tuple[Path, Path, list[str]]
     timings = json.loads((a / "timings.json").read_text())  # times live apart: run.json is reproducible
     assert {"simulate", "sensors", "observers", "scoring", "render", "report"} <= set(timings["stages_s"])
     assert timings["wall_s"] > 0 and "timings_s" not in run and "wall_s" not in run
+    from numba.core import config as numba_config  # per-step times name the code they timed
+
+    assert timings["kernel_target"] == (numba_config.CPU_NAME or "host")
 
     m = pd.read_csv(a / "metrics.csv")
     assert list(m.columns) == list(COLUMNS)

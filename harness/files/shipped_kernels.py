@@ -21,7 +21,7 @@ skipped and numba compiles that function as it would without a bundle (slow, nev
 
 ``ROADTRUTH_SHIPPED_KERNELS=0`` turns both off: kernels are then compiled for the host CPU on
 first use. The portable code runs most kernels at the host code's speed (the simulation loop
-alike); a few vectorisable ones run up to 1.4x slower per step, a few milliseconds of a default run
+alike); a few vectorisable ones run up to 1.6x slower per step, a few milliseconds of a default run
 (``benchmarks/bench_kernel_target.py``; the README's measured figures).
 """
 
@@ -96,6 +96,16 @@ def use_portable_target() -> bool:
         return False
     os.environ[CPU_ENV] = PORTABLE_CPU
     return True
+
+
+def kernel_target() -> str:
+    """The CPU numba generates code for in this process: ``generic`` (portable), another name set
+    by the user, or ``host``. Per-step times (``us_per_step``) are times of that code."""
+    if "numba" in sys.modules:
+        from numba.core import config
+
+        return config.CPU_NAME or "host"
+    return os.environ.get(CPU_ENV, "").strip() or "host"
 
 
 @dataclass(frozen=True)

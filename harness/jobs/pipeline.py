@@ -40,6 +40,7 @@ import pandas as pd  # noqa: E402
 
 from roadtruth.harness.errors import InputError  # noqa: E402
 from roadtruth.harness.files.outdir import atomic_output_dir  # noqa: E402
+from roadtruth.harness.files.shipped_kernels import kernel_target  # noqa: E402
 from roadtruth.harness.files.table_io import check_format, tracks_wide, write_table  # noqa: E402
 from roadtruth.harness.jobs.worker_pool import WorkerCrashed, WorkerPool, start_method  # noqa: E402
 from roadtruth.harness.progress import Progress  # noqa: E402
@@ -616,7 +617,7 @@ def run_suite(
             # Times differ between identical runs, so they live only in timings.json, which run.json and
             # the page never show: those stay byte-identical (and `roadtruth report DIR` rebuilds this page).
             write_json({"command": "run", "stages_s": {**totals, "report": round(time.perf_counter() - t, 4)},
-                        "wall_s": round(time.perf_counter() - t_wall, 3),
+                        "wall_s": round(time.perf_counter() - t_wall, 3), "kernel_target": kernel_target(),
                         "scenarios_s": {o.entry["name"]: o.entry.get("timings_s", {}) for o in ordered},
                         "us_per_step": {o.entry["name"]: {obs: r.get("us_per_step") for obs, r in o.runs.items()}
                                         for o in ordered}}, tmp / "timings.json")
