@@ -159,3 +159,18 @@ def test_the_portable_target_is_left_to_the_user(monkeypatch: pytest.MonkeyPatch
     assert "not 'generic'" in sk.seed_numba_cache().reason
     monkeypatch.delenv("NUMBA_CPU_NAME")
     assert not sk.use_portable_target()  # numba is imported here: too late to choose its target
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="observer hosts are forked on Linux only")
+def test_a_kernel_command_compiles_portably_and_still_forks_its_observer_hosts(tmp_path: Path) -> None:
+    """The CLI sets numba's target after ``import roadtruth`` recorded the start-up environment; a
+    host forked from the command must still count as a fresh interpreter (else every host would be
+    started as one: seconds of imports each)."""
+    probe = ("import roadtruth\nfrom roadtruth.harness import cli\ncli._load_shipped_kernels()\n"
+             "from numba.core import config\nfrom roadtruth.harness.evaluation.host_fork import fork_is_safe\n"
+             "print(config.CPU_NAME, fork_is_safe())")
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CPU_NAME", sk.SHIPPED_ENV)}
+    env.update({"NUMBA_CACHE_DIR": str(tmp_path / "numba"), CACHE_ENV: str(tmp_path / "cache"), "MUJOCO_GL": "egl"})
+    out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["generic", "True"]

@@ -95,6 +95,12 @@ def use_portable_target() -> bool:
     if "numba" in sys.modules:
         return False
     os.environ[CPU_ENV] = PORTABLE_CPU
+    # Nothing imported so far read it (numba is not imported): the start-up environment this
+    # process's imports were made under includes it, so a host forked from here still stands in
+    # for a fresh interpreter (``host_fork.fork_is_safe`` compares the two).
+    import roadtruth
+
+    roadtruth.ENVIRON_AT_IMPORT[CPU_ENV] = PORTABLE_CPU
     return True
 
 
