@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import plugin_observers
+from compile_listener import LISTENER
 import pytest
 
 from roadtruth.harness.evaluation import observer_host
@@ -30,7 +31,6 @@ TESTS = Path(__file__).resolve().parent
 _PROBE = r'''
 import json, sys
 import numpy as np, pandas as pd
-from numba.core import event
 from roadtruth.harness.evaluation import observer_host
 from roadtruth.harness.evaluation.estimate import measurement_times, observer_inputs
 from roadtruth.harness.jobs.design_warmup import DesignWarmup, solve_designs
@@ -42,18 +42,9 @@ vehicle = prepare_scenario("step_steer", None, None).vehicle_params()
 if sys.argv[1] == "warm":
     solve_designs(DesignWarmup.of([("step_steer", None, None)], observers), hosts=2)
     observer_host.shutdown()
-compiled = []
-
-class Seen(event.Listener):
-    def on_start(self, ev):
-        f = ev.data["dispatcher"].py_func
-        if f.__module__.startswith("roadtruth.observers"):
-            compiled.append(f"{f.__module__}.{f.__qualname__}")
-
-    def on_end(self, ev):
-        pass
-
-event.register("numba:compile", Seen())
+COMPILED_PREFIX = "roadtruth.observers"
+'''
+_PROBE += LISTENER + r'''
 t = np.arange(200) * 0.01
 frame = pd.DataFrame({"t_s": t, "vx_mps": 20.0, "yaw_rate_radps": 0.1 * np.sin(t), "ay_mps2": 2.0 * np.sin(t),
                       "delta_rad": 0.01 * np.sin(t), "imu_valid": 1.0, "steering_valid": 1.0})

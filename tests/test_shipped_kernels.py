@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numba
 import pytest
+from compile_listener import LISTENER
 
 from roadtruth.harness.files import shipped_kernels as sk
 from roadtruth.harness.files.disk_cache import CACHE_ENV
@@ -28,23 +29,12 @@ pytestmark = pytest.mark.skipif(
 #: the truth and the estimates.
 _PROBE = r'''
 import json, sys
-from numba.core import event
 from roadtruth.harness.files.shipped_kernels import seed_numba_cache
 if sys.argv[1] == "seed":
     r = seed_numba_cache()
     assert r.added > 100 and r.stale == 0, r
-compiled = []
-
-class Seen(event.Listener):
-    def on_start(self, ev):
-        f = ev.data["dispatcher"].py_func
-        if f.__module__.startswith("roadtruth."):
-            compiled.append(f"{f.__module__}.{f.__qualname__}")
-
-    def on_end(self, ev):
-        pass
-
-event.register("numba:compile", Seen())
+COMPILED_PREFIX = "roadtruth."
+''' + LISTENER + r'''
 from roadtruth.harness.evaluation import observer_host
 from roadtruth.harness.evaluation.estimate import measurement_times, observer_inputs
 from roadtruth.observers.registry import observer_class
