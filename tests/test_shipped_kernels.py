@@ -164,3 +164,20 @@ def test_a_kernel_command_compiles_portably_and_still_forks_its_observer_hosts(t
     out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split() == ["generic", "True"]
+
+
+def test_an_entry_of_an_edited_module_is_skipped_and_the_others_seeded(tmp_path: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """numba would ignore an entry whose source changed; seeding does not even copy it."""
+    monkeypatch.setenv("NUMBA_CPU_NAME", "generic")
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path / "cache"))
+    monkeypatch.delenv(sk.SHIPPED_ENV, raising=False)
+    monkeypatch.setattr(sk, "numba_cache_dir", lambda source: tmp_path / "numba" / source.parent.name)
+    real = sk.source_digest
+    monkeypatch.setattr(sk, "source_digest", lambda p: b"edited" if p.name == "tire.py" else real(p))
+    with zipfile.ZipFile(sk.bundle_path()) as zf:
+        tire = [n for n in zf.namelist() if n.endswith(".nbi") and Path(n).name.startswith("tire.")]
+        n_tire = sum(len(sk.read_index(zf.read(m))[2]) for m in tire)
+    r = sk.seed_numba_cache()
+    assert tire and r.stale == n_tire and r.added > 100, r
+    assert not any((tmp_path / "numba").rglob("tire.*"))
