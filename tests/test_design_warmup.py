@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import plugin_observers
-from compile_listener import LISTENER
 import pytest
+from compile_listener import LISTENER
 
 from roadtruth.harness.evaluation import observer_host
 from roadtruth.harness.files.disk_cache import CACHE_ENV
