@@ -181,3 +181,19 @@ def test_an_entry_of_an_edited_module_is_skipped_and_the_others_seeded(tmp_path:
     r = sk.seed_numba_cache()
     assert tire and r.stale == n_tire and r.added > 100, r
     assert not any((tmp_path / "numba").rglob("tire.*"))
+
+
+def test_a_failed_seeding_is_a_reason_not_an_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Seeding relies on numba's cache file format: if a numba release changed it, commands must
+    still run (and compile), not stop with a traceback."""
+    monkeypatch.setenv("NUMBA_CPU_NAME", "generic")
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path / "cache"))
+    monkeypatch.delenv(sk.SHIPPED_ENV, raising=False)
+
+    def changed_format(bundle: Path) -> None:
+        raise AttributeError("module 'numba.core.caching' has no attribute 'CompileResultCacheImpl'")
+
+    monkeypatch.setattr(sk, "_seed", changed_format)
+    r = sk.seed_numba_cache()
+    assert r.added == 0 and r.reason.startswith("not seeded: AttributeError"), r
+    assert not (tmp_path / "cache" / sk.SEED_KIND).exists()  # not recorded: tried again next time
