@@ -351,3 +351,19 @@ def test_time_unit_given_in_the_map_is_honoured(tmp_path: Path) -> None:
         cmap.write_text(f"time: {spec}\nvx_mps: vx_mps\nmeasured: [vx_mps]\n")
         frame = apply_map(read_log(tmp_path / "log.csv"), load_column_map(cmap), "log.csv")
         assert np.median(np.diff(frame["t_s"])) == pytest.approx(0.01, rel=1e-9)
+
+
+def test_a_missing_log_is_one_line_even_with_observer_hosts_started(tmp_path: Path) -> None:
+    """``replay`` starts its observer hosts before it reads the log, so that they get ready while it
+    does: when the log is missing the command exits before they are ready, and a host that finds
+    its caller gone ends quietly (a fresh process, as a user runs it: the hosts outlive main())."""
+    import subprocess
+    import sys
+
+    env = {**os.environ, "MUJOCO_GL": "egl", "ROADTRUTH_CACHE": str(tmp_path / "cache")}
+    done = subprocess.run([sys.executable, "-m", "roadtruth.harness.cli", "replay", str(tmp_path / "missing.csv.gz"),
+                           "--vehicle", "ferrari_250lm", "--columns", "revs_250lm", "--out", str(tmp_path / "out")],
+                          env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stderr[-2000:]
+    assert done.stderr.count("\n") == 1 and "file not found" in done.stderr, done.stderr[-2000:]
+    assert not (tmp_path / "out").exists()

@@ -242,17 +242,22 @@ def serve(requests: Connection, replies: Connection, parent_pid: int, death_sign
     if not forked:
         gc.collect()
     gc.freeze()
-    replies.send(("ready", os.getpid()))
-    while True:
-        try:
-            req = requests.recv()
-        except (EOFError, OSError):
-            return 0
-        reply = run_request(req)
-        try:
-            replies.send(reply)
-        except Exception as exc:  # noqa: BLE001 - an unpicklable track is that observer's error
-            replies.send(ObserverReply.failed(f"estimates could not be sent back: {one_line(exc)}"))
+    try:
+        replies.send(("ready", os.getpid()))
+        while True:
+            try:
+                req = requests.recv()
+            except (EOFError, OSError):
+                return 0
+            reply = run_request(req)
+            try:
+                replies.send(reply)
+            except (BrokenPipeError, ConnectionResetError):
+                raise
+            except Exception as exc:  # noqa: BLE001 - an unpicklable track is that observer's error
+                replies.send(ObserverReply.failed(f"estimates could not be sent back: {one_line(exc)}"))
+    except (BrokenPipeError, ConnectionResetError):
+        return 0  # the caller is gone (e.g. it stopped on bad input before its first observer)
 
 
 def main(argv: Sequence[str]) -> int:
