@@ -353,3 +353,35 @@ def test_the_owner_file_appears_whole_and_its_half_written_form_is_roadtruths(tm
     assert foreign_entry(done) is None
     (done / "mine.txt").write_text("a user's file")
     assert foreign_entry(done) == "mine.txt"
+
+
+def test_a_folder_swapped_by_another_writer_is_seen_and_a_new_path_is_not_waited_for(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """While a writer's two renames leave ``out`` missing (its old folder moved aside), a look at
+    ``out`` waits for the swap to finish and sees a folder; a path nobody is writing is new at once."""
+    from roadtruth.harness.files import outdir
+
+    new = tmp_path / "new-out"
+
+    def no_sleep(_: float) -> None:
+        raise AssertionError("waited on a path nobody is writing")
+
+    monkeypatch.setattr(outdir.time, "sleep", no_sleep)
+    assert outdir._kind(new) is None
+    monkeypatch.undo()
+
+    out = tmp_path / "out"
+    aside = tmp_path / ".out.old-0123abcd"
+    aside.mkdir()  # the first rename is done, the second not yet
+
+    def finish_swap() -> None:
+        time.sleep(0.01)
+        out.mkdir()
+        shutil.rmtree(aside)
+
+    t = threading.Thread(target=finish_swap)
+    t.start()
+    try:
+        assert outdir._kind(out) == "dir"
+    finally:
+        t.join()

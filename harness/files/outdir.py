@@ -150,8 +150,9 @@ def _foreign_entry(folder: Path) -> str | None:
 def _kind(p: Path) -> str | None:
     """``"dir"``, ``"file"`` (anything else, symlinks included) or None if nothing is there.
 
-    One ``lstat`` per look, and a look repeated when it saw nothing: a concurrent writer's two
-    renames leave the path missing for an instant, which must not read as "a file" or "nothing".
+    One ``lstat`` per look. A concurrent writer's two renames (:func:`_replace`) leave the path missing
+    for an instant, which must not read as "nothing": while the old folder it moved aside is there,
+    the look is repeated; once that is gone the swap is over, so one more look tells.
     """
     import stat
 
@@ -161,12 +162,25 @@ def _kind(p: Path) -> str | None:
         except NotADirectoryError:
             return None  # below a regular file: nothing can be there (check_writable says why)
         except FileNotFoundError:
-            if not p.parent.exists():
-                return None  # a new path below a new folder: no concurrent writer can be swapping it
-            time.sleep(0.002)
-            continue
+            if _swap_in_progress(p):
+                time.sleep(0.002)
+                continue
+            try:
+                mode = os.lstat(p).st_mode
+            except (FileNotFoundError, NotADirectoryError):
+                return None  # a new path: nothing there, and no writer swapping it
         return "dir" if stat.S_ISDIR(mode) else "file"
     return None
+
+
+def _swap_in_progress(p: Path) -> bool:
+    """Whether a writer has moved ``p`` aside (its ``.NAME.old-*`` sibling exists) and not yet finished."""
+    try:
+        names = os.listdir(p.parent)
+    except (FileNotFoundError, NotADirectoryError):
+        return False  # a new path below a new folder: no concurrent writer can be swapping it
+    prefix = f".{p.name}.old-"
+    return any(n.startswith(prefix) for n in names)
 
 
 def check_writable(path: str | Path, *, what: str, folder: bool = True) -> Path:
