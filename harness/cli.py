@@ -15,7 +15,7 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import NoReturn
 
@@ -122,16 +122,31 @@ def _observer_options(a: argparse.Namespace) -> dict | None:
 # ---- commands -----------------------------------------------------------------------------------
 
 def _start_workers_server(needed: bool, *, renders_only: bool = False) -> None:
-    """Start the worker pools' forkserver before the command's own imports (~0.3 s), so its
-    preload overlaps them; ``run_suite``/``run_stress`` would otherwise start it after them."""
+    """Start the worker pools' forkserver now, so its preload (~1 s) overlaps the seeding of numba's
+    cache and the command's own imports; ``run_suite``/``run_stress`` would otherwise start it after them."""
     if needed:
         from roadtruth.harness.jobs.worker_pool import start_forkserver
 
         start_forkserver(renders_only=renders_only)
 
 
-def _cmd_run(a: argparse.Namespace) -> int:
+def _run_server(a: argparse.Namespace) -> None:
     _start_workers_server(a.jobs > 1 or not a.no_render, renders_only=a.jobs <= 1)
+
+
+def _check_server(a: argparse.Namespace) -> None:
+    _start_workers_server(a.jobs > 1)
+
+
+def _stress_server(a: argparse.Namespace) -> None:
+    if a.dask == "local":
+        from roadtruth.harness.jobs.dask_setup import start_local_cluster_server
+
+        start_local_cluster_server()
+    _start_workers_server(a.jobs > 1 and not a.dask)
+
+
+def _cmd_run(a: argparse.Namespace) -> int:
     from roadtruth.harness.jobs.pipeline import run_suite
 
     out = run_suite(scenarios=a.scenario, suite_name=a.suite, observers=a.observer, seed=a.seed,
@@ -233,11 +248,6 @@ def _cmd_check(a: argparse.Namespace) -> int:
 
 
 def _cmd_stress(a: argparse.Namespace) -> int:
-    if a.dask == "local":
-        from roadtruth.harness.jobs.dask_setup import start_local_cluster_server
-
-        start_local_cluster_server()
-    _start_workers_server(a.jobs > 1 and not a.dask)
     from roadtruth.harness.jobs.stress import parse_fault_specs, parse_friction_list, run_stress
 
     out = run_stress(scenarios=a.scenario, suite_name=a.suite, observers=a.observer,
@@ -330,7 +340,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--observer-timeout", type=_timeout, metavar="SECONDS", help=_OBSERVER_TIMEOUT_HELP)
     _add_observer_options(r)
     _add_format(r)
-    r.set_defaults(func=_cmd_run)
+    r.set_defaults(func=_cmd_run, start_server=_run_server)
 
     s = sub.add_parser("simulate", help="ground truth and measurements only")
     s.add_argument("scenario", help="scenario name or YAML path")
@@ -371,7 +381,7 @@ def build_parser() -> argparse.ArgumentParser:
     ck.add_argument("--observer-timeout", type=_timeout, metavar="SECONDS", help=_OBSERVER_TIMEOUT_HELP)
     _add_observer_options(ck)
     _add_format(ck)
-    ck.set_defaults(func=_cmd_check)
+    ck.set_defaults(func=_cmd_check, start_server=_check_server)
 
     st = sub.add_parser("stress", help="robustness sweeps: friction x faults x Monte Carlo seeds")
     st.add_argument("--suite", default="stress", help="scenario suite (default stress)")
@@ -390,7 +400,7 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--observer-timeout", type=_timeout, metavar="SECONDS", help=_OBSERVER_TIMEOUT_HELP)
     _add_observer_options(st)
     _add_format(st)
-    st.set_defaults(func=_cmd_stress)
+    st.set_defaults(func=_cmd_stress, start_server=_stress_server)
 
     fz = sub.add_parser("falsify", help="search roads, manoeuvres, faults and vehicles for the case that "
                         "breaks an observer's promise")
@@ -499,7 +509,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command in KERNEL_COMMANDS:
-        _load_shipped_kernels()
+        _load_shipped_kernels(getattr(args, "start_server", None), args)
     try:
         with _termination_as_interrupt():
             return int(args.func(args))
@@ -526,13 +536,23 @@ def main(argv: Sequence[str] | None = None) -> int:
 KERNEL_COMMANDS = frozenset({"run", "simulate", "check", "stress", "falsify", "replay"})
 
 
-def _load_shipped_kernels() -> None:
+def _load_shipped_kernels(start_server: Callable[[argparse.Namespace], None] | None = None,
+                          args: argparse.Namespace | None = None) -> None:
     """Compile for the portable target of the kernels shipped with the package and add them to
     numba's cache before numba is first used (:mod:`roadtruth.harness.files.shipped_kernels`), so a
-    fresh install's first command loads them instead of compiling them."""
+    fresh install's first command loads them instead of compiling them.
+
+    ``start_server(args)``: starts the command's worker server once the target is set (the server
+    inherits it) and before the seeding, which its preload then overlaps. Its workers take tasks
+    only after this returns, so they find every shipped kernel seeded; the preload itself calls one
+    tiny kernel, which it compiles if it gets there first (a fraction of a second, never wrong).
+    """
     from roadtruth.harness.files.shipped_kernels import seed_numba_cache, use_portable_target
 
-    if use_portable_target():
+    portable = use_portable_target()
+    if start_server is not None and args is not None:
+        start_server(args)
+    if portable:
         seed_numba_cache()
 
 
