@@ -179,6 +179,19 @@ def test_a_kernel_command_compiles_portably_and_still_forks_its_observer_hosts(t
     assert out.stdout.split() == ["generic", "True"]
 
 
+def test_the_workers_server_starts_on_the_portable_target_before_numba_is_imported(tmp_path: Path) -> None:
+    """``run``/``check``/``stress`` start their workers' server once the target is set (the server
+    inherits it) and before the seeding, whose numba import its preload then overlaps."""
+    probe = ("import os, sys\nfrom roadtruth.harness import cli\nseen = []\n"
+             "cli._load_shipped_kernels(lambda a: seen.append(('numba' in sys.modules, os.environ.get('NUMBA_CPU_NAME'))), "
+             "object())\nprint(seen, 'numba' in sys.modules)")
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CPU_NAME", sk.SHIPPED_ENV)}
+    env.update({"NUMBA_CACHE_DIR": str(tmp_path / "numba"), CACHE_ENV: str(tmp_path / "cache")})
+    out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "[(False, 'generic')] True"
+
+
 def test_an_entry_of_an_edited_module_is_skipped_and_the_others_seeded(seeding: Path,
                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
     """numba would ignore an entry whose source changed; seeding does not even copy it."""
