@@ -54,7 +54,7 @@ from roadtruth.harness.report.rundata import (  # noqa: E402
     write_json,
 )
 
-STAGES: tuple[str, ...] = ("simulate", "sensors", "observers", "scoring", "write", "render")
+STAGES: tuple[str, ...] = ("simulate", "sensors", "observers", "scoring", "write", "figures", "render")
 
 
 @dataclass(frozen=True)
@@ -87,6 +87,8 @@ class ScenarioOutcome:
     entry: dict[str, Any]
     runs: dict[str, dict[str, Any]]
     timings: dict[str, float] = field(default_factory=dict)
+    #: the report's figures of this scenario, drawn where its files were written (``drawn_figures``)
+    figures: dict[Any, list[dict[str, Any]]] = field(default_factory=dict)
 
 
 def scenario_seeds(scenario_seed: int, name: str, seed: int | None) -> tuple[np.random.SeedSequence, int, int]:
@@ -285,6 +287,7 @@ def compute_scenario(task: ScenarioTask, *, failed: str | None = None,
     """
     from roadtruth.harness.evaluation.scoring import score
     from roadtruth.harness.report.render import RenderSource
+    from roadtruth.harness.report.sections.scenarios import drawn_figures
     from roadtruth.harness.truth.truth_events import scored_until_of, status_of
 
     timings = dict.fromkeys(STAGES, 0.0)
@@ -346,6 +349,11 @@ def compute_scenario(task: ScenarioTask, *, failed: str | None = None,
     t = time.perf_counter()
     write_table(tracks_wide(tracks), folder, "estimates", task.table_format)  # one row per time step
     timings["write"] += time.perf_counter() - t
+    # Drawn here, from the files just written, rather than by the page at the end: with --jobs the
+    # workers draw them while other scenarios still run, and the page, built alone, only assembles.
+    t = time.perf_counter()
+    figures = drawn_figures(task.run_dir, label, metrics, entry)
+    timings["figures"] = time.perf_counter() - t
 
     entry["render"] = {"frames": [], "video": None, "reason": "rendering switched off (--no-render)"}
     job = None
@@ -359,7 +367,8 @@ def compute_scenario(task: ScenarioTask, *, failed: str | None = None,
                         beta=beta, observer=best)
     entry["timings_s"] = {k: round(v, 4) for k, v in timings.items()}
     outcome = ScenarioOutcome(name=task.name, metrics=metrics, entry=entry,
-                              runs={k: _observer_run_dict(v) for k, v in runs.items()}, timings=timings)
+                              runs={k: _observer_run_dict(v) for k, v in runs.items()}, timings=timings,
+                              figures=figures)
     return outcome, job
 
 
@@ -613,7 +622,7 @@ def run_suite(
             }
             write_json(run_json, tmp / "run.json")
             t = time.perf_counter()
-            build_report(tmp)
+            build_report(tmp, figures={k: v for o in ordered for k, v in o.figures.items()})
             # Times differ between identical runs, so they live only in timings.json, which run.json and
             # the page never show: those stay byte-identical (and `roadtruth report DIR` rebuilds this page).
             write_json({"command": "run", "stages_s": {**totals, "report": round(time.perf_counter() - t, 4)},

@@ -6,11 +6,12 @@ from __future__ import annotations
 import os
 import re
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import cache
 from importlib.resources import files
 from pathlib import Path
+from typing import Any
 
 import jinja2
 import orjson
@@ -44,6 +45,10 @@ class Page:
     #: "not_applicable", "not_evaluated"), from run.json's observer runs or, failing that, the
     #: ``certified`` column of the rows of runs that got as far as a design.
     designs: dict[str, str] = field(default_factory=dict)
+    #: scenario figures drawn before the page was built, by the plan they were drawn under
+    #: (``roadtruth.harness.report.sections.scenarios.drawn_figures``); a scenario whose plan on
+    #: this page differs, or that is missing, is drawn by the page itself.
+    figures: Mapping[Any, list[dict[str, Any]]] = field(default_factory=dict)
 
     @property
     def colours(self) -> dict[str, str]:
@@ -146,9 +151,11 @@ def plotly_js() -> str:
 class ReportBuilder:
     """Render sections into one page."""
 
-    def __init__(self, run: RunData, sections: list[Section] | None = None) -> None:
+    def __init__(self, run: RunData, sections: list[Section] | None = None,
+                 figures: Mapping[Any, list[dict[str, Any]]] | None = None) -> None:
         self.run = run
         self.sections = list(sections) if sections is not None else default_sections()
+        self.figures = dict(figures or {})
 
     def add_section(self, section: Section) -> None:
         self.sections.append(section)
@@ -163,7 +170,8 @@ class ReportBuilder:
         first, which took about three page sizes of memory (the text, 2 bytes a character once
         it holds a "β", and its UTF-8 copy) at what was the report's memory peak on a long log."""
         env = _environment()
-        page = Page(styles=observer_styles(self.run.observer_names), designs=design_statuses(self.run))
+        page = Page(styles=observer_styles(self.run.observer_names), designs=design_statuses(self.run),
+                    figures=self.figures)
         parts = []
         for s in self.sections:
             ctx = s.context(self.run, page)
@@ -192,15 +200,18 @@ def warm_up() -> None:
         env.get_template(name)
 
 
-def build_report(run_dir: Path) -> Path:
+def build_report(run_dir: Path, figures: Mapping[Any, list[dict[str, Any]]] | None = None) -> Path:
     """Rebuild ``run_dir/index.html`` from the saved CSV/JSON files alone (no re-simulation).
+
+    ``figures``: scenario figures already drawn from these files (``drawn_figures``), used where
+    the page's plan for them is the same; the page is the same bytes with or without them.
 
     The page is written to a temporary file in the same folder and renamed over the old one, so a
     reader never sees a half-written page. Raises ``RunFolderError`` (an InputError) if ``run_dir``
     is not a run folder.
     """
     run_dir = Path(run_dir)
-    pieces = ReportBuilder(RunData.load(run_dir)).pieces()
+    pieces = ReportBuilder(RunData.load(run_dir), figures=figures).pieces()
     first = next(pieces, "")  # the sections are rendered before a temporary file is made
     fd, tmp = tempfile.mkstemp(prefix=".index.html.", suffix=".partial", dir=run_dir)
     try:

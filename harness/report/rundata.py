@@ -491,6 +491,13 @@ def _finite(x: Any) -> bool:
     return isinstance(x, int | float) and math.isfinite(x)
 
 
+def state_order(state: str) -> tuple[int, str]:
+    """Sort key of states on a page: the canonical order of the estimable signals, then by name."""
+    from roadtruth.harness.signals import ESTIMABLE
+
+    return (ESTIMABLE.index(state) if state in ESTIMABLE else len(ESTIMABLE), state)
+
+
 @dataclass(frozen=True)
 class RunData:
     """A whole run folder: metrics, run description and per-scenario files.
@@ -539,11 +546,7 @@ class RunData:
 
     @cached_property
     def states(self) -> list[str]:
-        from roadtruth.harness.signals import ESTIMABLE
-
-        present = [s for s in self.metrics["state"].astype(str).unique() if s]
-        order = {s: i for i, s in enumerate(ESTIMABLE)}
-        return sorted(present, key=lambda s: (order.get(s, len(order)), s))
+        return sorted((s for s in self.metrics["state"].astype(str).unique() if s), key=state_order)
 
     @cached_property
     def scored_states(self) -> list[str]:
