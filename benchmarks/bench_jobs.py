@@ -25,11 +25,13 @@ import bench_env
 ROOT = Path(__file__).resolve().parents[1]
 #: The source tree the commands run from (``--root``: e.g. an older checkout, for a before/after).
 ROOT_DIR = [ROOT]
+#: What makes the commands import that tree's code (``bench_env.source_tree_env``).
+TREE_ENV: dict[str, str] = {}
 
 
 def run_once(jobs: int, suite: str, out: Path) -> float:
     """Wall time [s] of one ``roadtruth run --no-render --jobs JOBS`` into a new folder under ``out``."""
-    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), **TREE_ENV}
     cmd = [sys.executable, "-m", "roadtruth.harness.cli", "run", "--suite", suite, "--no-render", "--jobs", str(jobs),
            "--out", str(out / f"jobs{jobs}-{time.monotonic_ns()}")]
     t = time.perf_counter()
@@ -45,6 +47,7 @@ def main() -> None:
     p.add_argument("--root", type=Path, default=ROOT, help="source tree to run (default: this checkout)")
     a = p.parse_args()
     ROOT_DIR[0] = a.root.resolve()
+    TREE_ENV.update(bench_env.source_tree_env(ROOT_DIR[0]))
     print(f"cores: {os.cpu_count()}, load average before: {os.getloadavg()[0]:.2f}")
     with tempfile.TemporaryDirectory(prefix="bench-jobs-") as tmp:
         out = Path(tmp)

@@ -28,13 +28,15 @@ import bench_env
 ROOT = Path(__file__).resolve().parents[1]
 #: The source tree the commands run from (``--root``: e.g. an older checkout, for a before/after).
 ROOT_DIR = [ROOT]
+#: What makes the commands import that tree's code (``bench_env.source_tree_env``).
+TREE_ENV: dict[str, str] = {}
 SWEEP = ["--scenario", "step_steer", "--observer", "kf_bicycle,lpv_wang", "--friction", "1.0,0.6,0.3,ice",
          "--faults", "none;gnss:dropout=0.2", "--seed", "0", "--fresh"]
 
 
 def sweep_once(label: str, extra: list[str], seeds: int, out: Path) -> float:
     """Wall time [s] of one ``roadtruth stress`` of the benchmark sweep with ``extra`` options."""
-    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), **TREE_ENV}
     cmd = [sys.executable, "-m", "roadtruth.harness.cli", "stress", *SWEEP, "--seeds", str(seeds), *extra,
            "--out", str(out / f"{label}-{time.monotonic_ns()}")]
     t = time.perf_counter()
@@ -51,6 +53,7 @@ def main() -> None:
     p.add_argument("--root", type=Path, default=ROOT, help="source tree to run (default: this checkout)")
     a = p.parse_args()
     ROOT_DIR[0] = a.root.resolve()
+    TREE_ENV.update(bench_env.source_tree_env(ROOT_DIR[0]))
     n = 8 * a.seeds
     executors = {"--jobs 1": ["--jobs", "1"], "--jobs 2": ["--jobs", "2"]}
     if not a.skip_dask:
