@@ -143,3 +143,21 @@ def test_failed_cases_are_not_cached(tiny: Path, tmp_path: Path, monkeypatch: py
     # retried and run: no error left (on ice the KF's sideslip may honestly be "unusable")
     assert not _rows(healed)["status"].str.startswith("error").any()
     assert _rows(healed).loc[lambda r: r["friction"] == "1.0", "status"].str.startswith("ok").all()
+
+
+def test_worker_processes_store_their_own_cases(tiny: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """With ``--jobs 2`` each worker stores the cases it ran as soon as they are scored; the sweep's
+    own process, which shares the two cores with them, stores none (and a rerun loads them all)."""
+    import roadtruth.harness.jobs.stress_cache as stress_cache
+
+    def not_here(*args: object) -> None:
+        raise AssertionError("the sweep's process stored a case its worker had stored")
+
+    monkeypatch.setattr(stress_cache, "store_finished", not_here)  # this process only: workers are fresh
+    first = _sweep(tiny, tmp_path / "a", jobs=2)
+    assert (_timings(first)["n_computed"], _timings(first)["n_cached"]) == (4, 0)
+    assert len(list((tmp_path / "cache" / CACHE_KIND).glob("*.json"))) == 4
+    again = _sweep(tiny, tmp_path / "b", jobs=2)
+    assert (_timings(again)["n_computed"], _timings(again)["n_cached"]) == (0, 4)
+    for name in RESULT_FILES:
+        assert (first / name).read_bytes() == (again / name).read_bytes(), name

@@ -22,6 +22,7 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+import dataclasses  # noqa: E402
 import math  # noqa: E402
 import time  # noqa: E402
 import traceback  # noqa: E402
@@ -149,6 +150,10 @@ class StressCase:
     observer_options: dict[str, dict[str, Any]] | None = None
     # Names the sweep the case belongs to: a worker reuses prepared scenarios within one sweep only.
     sweep: str = ""
+    # The case cache entry the process that runs the case stores its rows under, as soon as they are
+    # scored (same machine, same cache). None: the sweep's own process stores them (Dask workers
+    # may be other machines), or the case cannot be keyed.
+    cache_key: str | None = None
 
 
 @dataclass(frozen=True)
@@ -157,6 +162,8 @@ class CaseResult:
     rows: pd.DataFrame
     seconds: float
     traceback: str | None = None
+    #: the process that ran the case has stored it in the case cache (``StressCase.cache_key``)
+    stored: bool = False
 
 
 def _mu_label(sc: Any) -> float:
@@ -250,7 +257,15 @@ def run_case(case: StressCase, before_observers: Callable[[], None] | None = Non
             "peak_abs_ay_mps2": _peak(truth.frame, "ay_mps2"), "peak_abs_beta_rad": _peak(truth.frame, "beta_rad")}
     for i, (k, v) in enumerate(head.items()):
         metrics.insert(i, k, [v] * len(metrics))
-    return CaseResult(index=case.index, rows=metrics, seconds=time.perf_counter() - t0, traceback=tb)
+    result = CaseResult(index=case.index, rows=metrics, seconds=time.perf_counter() - t0, traceback=tb)
+    if case.cache_key is None:
+        return result
+    from roadtruth.harness.jobs.stress_cache import store_finished
+
+    # Here rather than in the sweep's process: with worker processes that process shares the two
+    # cores with them, and storing a case (its rows as exact JSON) costs about a tenth of running it.
+    store_finished(result, case.cache_key)
+    return dataclasses.replace(result, stored=True)
 
 
 def build_cases(scenarios: list[str], frictions: list[str], faults: list[str], seeds: list[int],
@@ -477,6 +492,8 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
     keys = case_keys(cases)
     results: dict[int, CaseResult] = {} if fresh else load_cached(cases, keys)
     todo = [c for c in cases if c.index not in results]
+    if dask is None:  # local processes share this machine's case cache: each stores its own cases
+        todo = [dataclasses.replace(c, cache_key=keys.get(c.index)) for c in todo]
 
     dask_info: dict[str, Any] = {}
     bar = Progress(len(todo), progress, desc="roadtruth stress")
@@ -489,7 +506,8 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
             stream = (_run_dask(todo, dask, jobs, dask_info) if dask else _run_local(todo, jobs)) if todo else ()
             for r in stream:
                 results[r.index] = r
-                store_finished(r, keys.get(r.index))  # at once: a killed sweep keeps what it finished
+                if not r.stored:  # at once: a killed sweep keeps what it finished
+                    store_finished(r, keys.get(r.index))
                 c = cases[r.index]
                 bar.item(f"case {c.index}: {c.scenario} friction={c.friction} faults={c.faults} "
                          f"seed#{c.seed_index}: {r.rows['truth_status'].iloc[0] if len(r.rows) else '?'}, "

@@ -220,7 +220,7 @@ def is_cacheable(rows: pd.DataFrame, traceback: str | None) -> bool:
     if traceback or rows.empty:
         return False
     for col in ("status", "truth_status"):
-        if col in rows and rows[col].astype(str).str.startswith("error").any():
+        if col in rows and any(str(v).startswith("error") for v in rows[col].tolist()):
             return False
     return True
 
