@@ -31,24 +31,26 @@ def with_bytecode() -> None:
     os.execve(sys.executable, [sys.executable, *sys.orig_argv[1:]], env)
 
 
-def source_tree_env(root: Path) -> dict[str, str]:
-    """Environment variables that make ``python -m roadtruth...`` run the code of the source tree
-    ``root`` (e.g. an older checkout, for a before/after) instead of the installed one.
+
+def source_tree(root: Path) -> tuple[dict[str, str], Path]:
+    """The environment variables and working folder that make ``python -m roadtruth...`` run the
+    code of the source tree ``root`` (e.g. an older checkout, for a before/after) instead of the
+    installed one.
 
     The installed package is an editable install of this checkout, and its import hook maps
     ``roadtruth.harness`` to this checkout's ``harness/`` whatever the working folder: running from
-    ``root`` alone would time this checkout's code under the old tree's name. The ``roadtruth``
+    ``root`` would time this checkout's code under the old tree's name. So the ``roadtruth``
     namespace of ``root`` (its ``roadtruth/``, ``harness/``, ``observers/`` and ``mjcf/``) is linked
-    into a private folder put first on ``PYTHONPATH``, which every process of a run inherits
-    (forkserver, workers, renderers); it is checked before use. Empty for this checkout itself.
+    into a private folder, which the commands run from and which is put first on ``PYTHONPATH`` for
+    every process of a run (forkserver, workers, renderers); checked before use. For this checkout
+    itself: no variables, and ``root``.
     """
     import hashlib
     import subprocess
 
     root = Path(root).resolve()
-    here = Path(__file__).resolve().parents[1]
-    if root == here:
-        return {}
+    if root == Path(__file__).resolve().parents[1]:
+        return {}, root
     tree = Path(tempfile.gettempdir()) / f"roadtruth-bench-tree-{hashlib.sha256(str(root).encode()).hexdigest()[:12]}"
     package = tree / "roadtruth"
     package.mkdir(parents=True, exist_ok=True)
@@ -59,8 +61,8 @@ def source_tree_env(root: Path) -> dict[str, str]:
             link.symlink_to(target)
     env = {"PYTHONPATH": os.pathsep.join([str(tree), *filter(None, [os.environ.get("PYTHONPATH")])])}
     probe = subprocess.run([sys.executable, "-c", "import roadtruth.harness as h, roadtruth.observers as o; "
-                            "print(h.__file__); print(o.__file__)"], env={**os.environ, **env},
+                            "print(h.__file__); print(o.__file__)"], env={**os.environ, **env}, cwd=tree,
                            capture_output=True, text=True, check=True).stdout.split()
     if any(not Path(f).resolve().is_relative_to(root) for f in probe):
         raise SystemExit(f"--root {root}: its code is not what would run (imported from {probe})")
-    return env
+    return env, tree

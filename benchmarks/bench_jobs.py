@@ -23,9 +23,9 @@ from pathlib import Path
 import bench_env
 
 ROOT = Path(__file__).resolve().parents[1]
-#: The source tree the commands run from (``--root``: e.g. an older checkout, for a before/after).
+#: The folder the commands run from: this checkout, or the one that runs ``--root``'s code.
 ROOT_DIR = [ROOT]
-#: What makes the commands import that tree's code (``bench_env.source_tree_env``).
+#: What makes the commands import that tree's code (``bench_env.source_tree``).
 TREE_ENV: dict[str, str] = {}
 
 
@@ -46,8 +46,8 @@ def main() -> None:
     p.add_argument("--suite", default="default", help="scenario suite (default: default)")
     p.add_argument("--root", type=Path, default=ROOT, help="source tree to run (default: this checkout)")
     a = p.parse_args()
-    ROOT_DIR[0] = a.root.resolve()
-    TREE_ENV.update(bench_env.source_tree_env(ROOT_DIR[0]))
+    env, ROOT_DIR[0] = bench_env.source_tree(a.root)
+    TREE_ENV.update(env)
     print(f"cores: {os.cpu_count()}, load average before: {os.getloadavg()[0]:.2f}")
     with tempfile.TemporaryDirectory(prefix="bench-jobs-") as tmp:
         out = Path(tmp)

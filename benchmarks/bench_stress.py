@@ -26,9 +26,9 @@ from pathlib import Path
 import bench_env
 
 ROOT = Path(__file__).resolve().parents[1]
-#: The source tree the commands run from (``--root``: e.g. an older checkout, for a before/after).
+#: The folder the commands run from: this checkout, or the one that runs ``--root``'s code.
 ROOT_DIR = [ROOT]
-#: What makes the commands import that tree's code (``bench_env.source_tree_env``).
+#: What makes the commands import that tree's code (``bench_env.source_tree``).
 TREE_ENV: dict[str, str] = {}
 SWEEP = ["--scenario", "step_steer", "--observer", "kf_bicycle,lpv_wang", "--friction", "1.0,0.6,0.3,ice",
          "--faults", "none;gnss:dropout=0.2", "--seed", "0", "--fresh"]
@@ -52,8 +52,8 @@ def main() -> None:
     p.add_argument("--skip-dask", action="store_true", help="skip the Dask LocalCluster sweeps")
     p.add_argument("--root", type=Path, default=ROOT, help="source tree to run (default: this checkout)")
     a = p.parse_args()
-    ROOT_DIR[0] = a.root.resolve()
-    TREE_ENV.update(bench_env.source_tree_env(ROOT_DIR[0]))
+    env, ROOT_DIR[0] = bench_env.source_tree(a.root)
+    TREE_ENV.update(env)
     n = 8 * a.seeds
     executors = {"--jobs 1": ["--jobs", "1"], "--jobs 2": ["--jobs", "2"]}
     if not a.skip_dask:
