@@ -277,3 +277,34 @@ def test_dask_batches_cover_every_case_once_in_order() -> None:
         assert len(batches) >= min(len(cases), 4 * workers) or len(batches[0]) == 16
     assert dask_batches(cases[:3], 2) == [[c] for c in cases[:3]]
     assert dask_batches([], 2) == []
+
+
+def test_summary_fractions_counts_and_missing_labels_per_group() -> None:
+    """Status fractions over every seed, failures over the controlled ones, distinct cases counted
+    once, and rows without a state label summarised together (one group), as their own row."""
+    import math
+
+    from roadtruth.harness.report.stress_report import summarize
+
+    nan = math.nan
+    base = {"scenario": "s", "observer": "o", "friction": "1", "faults": "none", "mu": 1.0, "coverage": nan,
+            "peak_abs_beta_rad": 0.01}
+    rows = pd.DataFrame([
+        {**base, "case": 0, "state": "beta_rad", "status": "ok", "rmse": 0.01, "truth_status": "ok"},
+        {**base, "case": 1, "state": "beta_rad", "status": "diverged at t=2 s", "rmse": 0.5, "truth_status": "ok"},
+        {**base, "case": 2, "state": "beta_rad", "status": "error: boom", "rmse": nan, "truth_status": nan},
+        {**base, "case": 3, "state": "beta_rad", "status": "ok", "rmse": 9.0, "truth_status": "spun out at t=1 s"},
+        {**base, "case": 4, "state": nan, "status": "skipped: missing radar", "rmse": nan, "truth_status": "ok"},
+        {**base, "case": 5, "state": nan, "status": "skipped: missing radar", "rmse": nan, "truth_status": "ok"},
+    ])
+    s = summarize(rows)
+    assert len(s) == 2
+    beta = s[s["state"] == "beta_rad"].iloc[0]
+    assert (beta.n_cases, beta.n_controlled, beta.truth_lost) == (4, 3, 1)
+    assert (beta.frac_ok, beta.frac_diverged, beta.frac_error) == (0.5, 0.25, 0.25)
+    assert beta.frac_failed == 2 / 3  # diverged + error among the three controlled seeds
+    assert beta.rmse_max == 0.5 and beta.rmse_mean == pytest.approx(0.255, abs=1e-15)  # spun-out 9.0 left out
+    assert beta.truth_statuses == "spun out at t=1 s"
+    none = s[s["state"].isna()].iloc[0]
+    assert (none.n_cases, none.frac_not_applicable, none.frac_failed) == (2, 1.0, 0.0)
+    assert math.isnan(none.rmse_mean)

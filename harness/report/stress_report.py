@@ -69,6 +69,24 @@ def _observer_failed(status: pd.Series) -> pd.Series:
     return ~s.str.startswith("ok") & ~s.str.startswith("skipped")
 
 
+def _is_observer_failure(status: str) -> bool:
+    """:func:`_observer_failed` of one status."""
+    return not status.startswith("ok") and not status.startswith("skipped")
+
+
+#: Stands for a NaN group label (NaN equals nothing, itself included).
+_NAN_KEY = object()
+
+
+def _missing(x: Any) -> bool:
+    return x is None or x is pd.NA or (isinstance(x, float) and x != x)
+
+
+def _fraction(values: list[str], test: Any) -> float:
+    """Share of ``values`` passing ``test`` (NaN for none), as a mean of booleans gives it."""
+    return sum(1 for v in values if test(v)) / len(values) if values else math.nan
+
+
 def _q(v: np.ndarray, q: float) -> float:
     v = v[np.isfinite(v)]
     return float(np.percentile(v, q)) if v.size else math.nan
@@ -93,29 +111,45 @@ def summarize(rows: pd.DataFrame) -> pd.DataFrame:
         One row per ``GROUP`` key in first-appearance order. RMSE statistics use the seeds whose car
         stayed under control and whose observer ran (NaN metrics ignored); status fractions use all seeds.
     """
-    truth = rows["truth_status"] if "truth_status" in rows else pd.Series("ok", index=rows.index)
-    lost_all = lost_control(truth)
+    # One pass over plain columns: a pandas filter per group cost ~4 ms a group (0.3 s per 96 cases).
+    n = len(rows)
+    truth = (rows["truth_status"].tolist() if "truth_status" in rows else ["ok"] * n)
+    truth = ["ok" if _missing(t) else str(t) for t in truth]
+    lost_all = lost_control(pd.Series(truth, dtype=object)).tolist()
+    status_all = [str(v) for v in rows["status"].tolist()]
+    case_all = rows["case"].tolist()
+    mu_all = rows["mu"].tolist()
+    rmse_all = rows["rmse"].to_numpy(float)
+    coverage_all = rows["coverage"].to_numpy(float)
+    beta_all = rows["peak_abs_beta_rad"].to_numpy(float) if "peak_abs_beta_rad" in rows else None
+    groups: dict[tuple[Any, ...], list[int]] = {}
+    keys: dict[tuple[Any, ...], tuple[Any, ...]] = {}
+    for i, key in enumerate(zip(*(rows[c].tolist() for c in GROUP), strict=True)):
+        # NaN labels form one group, as in groupby(dropna=False)
+        norm = tuple(_NAN_KEY if _missing(k) else k for k in key)
+        if norm not in groups:
+            groups[norm], keys[norm] = [], key
+        groups[norm].append(i)
     out = []
-    for key, g in rows.groupby(list(GROUP), sort=False, dropna=False):
-        status = g["status"].astype(str)
-        lost = lost_all.loc[g.index]
-        ctl = g[~lost]
-        rmse = ctl["rmse"].to_numpy(float)
-        tstat = truth.loc[g.index].fillna("ok").astype(str)
-        beta_peak = g["peak_abs_beta_rad"].to_numpy(float) if "peak_abs_beta_rad" in g else np.array([])
+    for norm, idx in groups.items():
+        ctl = [i for i in idx if not lost_all[i]]
+        lost = [i for i in idx if lost_all[i]]
+        status = [status_all[i] for i in idx]
+        rmse = rmse_all[ctl]
         out.append({
-            **dict(zip(GROUP, key, strict=True)),
-            "mu": g["mu"].iloc[0], "n_cases": int(g["case"].nunique()), "n_controlled": int(ctl["case"].nunique()),
+            **dict(zip(GROUP, keys[norm], strict=True)),
+            "mu": mu_all[idx[0]], "n_cases": len({case_all[i] for i in idx}),
+            "n_controlled": len({case_all[i] for i in ctl}),
             "rmse_mean": _stat(rmse, np.mean), "rmse_p5": _q(rmse, 5), "rmse_p95": _q(rmse, 95),
-            "rmse_max": _stat(rmse, np.max), "coverage_min": _stat(ctl["coverage"].to_numpy(float), np.min),
-            "frac_ok": float(status.str.startswith("ok").mean()),
-            "frac_diverged": float(status.str.contains("diverged").mean()),
-            "frac_error": float(status.str.startswith("error").mean()),
-            "frac_not_applicable": float(status.str.startswith("skipped: missing").mean()),
-            "frac_failed": float(_observer_failed(ctl["status"]).mean()) if len(ctl) else math.nan,
-            "truth_lost": int(g.loc[lost, "case"].nunique()),
-            "truth_statuses": "; ".join(sorted({t for t in tstat if t != "ok"})),
-            "peak_abs_beta_rad_mean": _stat(beta_peak, np.mean),
+            "rmse_max": _stat(rmse, np.max), "coverage_min": _stat(coverage_all[ctl], np.min),
+            "frac_ok": _fraction(status, lambda v: v.startswith("ok")),
+            "frac_diverged": _fraction(status, lambda v: "diverged" in v),
+            "frac_error": _fraction(status, lambda v: v.startswith("error")),
+            "frac_not_applicable": _fraction(status, lambda v: v.startswith("skipped: missing")),
+            "frac_failed": (_fraction([status_all[i] for i in ctl], _is_observer_failure) if ctl else math.nan),
+            "truth_lost": len({case_all[i] for i in lost}),
+            "truth_statuses": "; ".join(sorted({truth[i] for i in idx if truth[i] != "ok"})),
+            "peak_abs_beta_rad_mean": _stat(beta_all[idx] if beta_all is not None else np.array([]), np.mean),
         })
     return pd.DataFrame(out, columns=[*GROUP, "mu", "n_cases", "n_controlled", "rmse_mean", "rmse_p5", "rmse_p95",
                                       "rmse_max", "coverage_min", "frac_ok", "frac_diverged", "frac_error",
