@@ -1,12 +1,13 @@
 """Wall time of the commands a user waits for, each in a fresh process, against interpreter baselines.
 
-Run by hand: ``python benchmarks/bench_commands.py [--repeat N] [--no-phases]``. Measures
+Run by hand: ``python benchmarks/bench_commands.py [--repeat N] [--no-phases] [--against OLD]``. Measures
 ``roadtruth scenarios``, ``roadtruth observers`` and ``roadtruth simulate step_steer --out <tmp>``
 (a 5 s scenario) as fresh subprocesses (what a user sees: imports, work, writing, exit), and in the
 same run the baselines ``python -c pass`` (interpreter start) and ``python -c "import numpy"``, so
 that figures measured on a loaded machine can be compared as ratios. Prints best and median of N for
 each, and each command's ratio to both baselines (best / best). The load average is printed before
-and after.
+and after. ``--against OLD`` also times ``simulate`` as the source tree ``OLD`` (an older checkout)
+runs it, interleaved in the same rounds: a before/after on a machine whose speed drifts.
 
 Compiled bytecode: an installed package has its ``.pyc`` files, but a source checkout run with
 ``PYTHONDONTWRITEBYTECODE=1`` compiles every module of the package at every start (a few tenths
@@ -66,10 +67,10 @@ print(json.dumps(phases)); sys.stdout.flush(); os._exit(0)
 """
 
 
-def wall_s(argv: list[str], env: dict[str, str]) -> float:
-    """Seconds from starting ``argv`` to its exit (fails loudly if the command fails)."""
+def wall_s(argv: list[str], env: dict[str, str], cwd: Path | None = None) -> float:
+    """Seconds from starting ``argv`` (in ``cwd``) to its exit (fails loudly if the command fails)."""
     t = time.perf_counter()
-    res = subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+    res = subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env, cwd=cwd)
     dt = time.perf_counter() - t
     if res.returncode != 0:
         raise SystemExit(f"{' '.join(argv)} exited {res.returncode}: {res.stderr.strip()[-500:]}")
@@ -98,6 +99,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--repeat", type=int, default=5, help="fresh processes per command (default 5)")
     p.add_argument("--no-phases", action="store_true", help="skip the phase breakdown of simulate")
+    p.add_argument("--against", type=Path, help="also time simulate as this source tree runs it, interleaved")
     a = p.parse_args()
     py = sys.executable
     print(f"cores: {os.cpu_count()}, load average before: {os.getloadavg()[0]:.2f}, repeat {a.repeat}")
@@ -112,6 +114,15 @@ def main() -> None:
             "roadtruth observers": [py, "-m", "roadtruth.harness.cli", "observers"],
             "roadtruth simulate step_steer": [py, "-m", "roadtruth.harness.cli", "simulate", "step_steer", "--out", ""],
         }
+        envs: dict[str, tuple[dict[str, str], Path | None]] = {name: (env, None) for name in cases}
+        if a.against is not None:
+            sys.path.insert(0, str(Path(__file__).resolve().parent))
+            import bench_env
+
+            old_env, old_cwd = bench_env.source_tree(a.against)
+            name = f"  the same, {a.against.name}'s code"
+            cases[name] = cases["roadtruth simulate step_steer"]
+            envs[name] = ({**env, **old_env}, old_cwd)
         # One untimed round first: numba's on-disk cache, the bytecode folder and the OS file cache
         # are warm, as for a user's second command of the day (the first after an install also compiles).
         times: dict[str, list[float]] = {k: [] for k in cases}
@@ -119,7 +130,7 @@ def main() -> None:
             for name, argv in cases.items():  # interleaved, so load changes hit every case alike
                 if argv[-1] == "":
                     argv = [*argv[:-1], str(Path(tmp) / f"sim{k}")]
-                dt = wall_s(argv, env)
+                dt = wall_s(argv, *envs[name])
                 if k > 0:
                     times[name].append(dt)
         base, base_np = min(times["python -c pass"]), min(times["python -c 'import numpy'"])

@@ -225,16 +225,23 @@ def serve(requests: Connection, replies: Connection, parent_pid: int, death_sign
     ``forked``: this process was forked from the caller (which may have imported and warmed
     everything already) rather than started as a fresh interpreter.
     """
-    from roadtruth.harness.jobs.warm_start import import_observers, set_up_numba
+    from roadtruth.harness.jobs.warm_start import (
+        collection_paused,
+        import_observers,
+        load_numba_blas,
+        set_up_numba,
+    )
     from roadtruth.harness.jobs.worker_pool import exit_with
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the caller's: it kills this process
     name_process(HOST_PROCESS_NAME)
     exit_with(parent_pid, parent_pid, death_signal=death_signal)
-    import_observers()  # numpy, numba kernels and every observer, imported once (if not yet)
-    # numba's one-time target set-up (0.8-1.2 s) now, before "ready", while the caller still
-    # simulates: otherwise it lands in the first observer's request.
-    set_up_numba()
+    load_numba_blas()
+    with collection_paused():  # collected once below, when all of it is made
+        import_observers()  # numpy, numba kernels and every observer, imported once (if not yet)
+        # numba's one-time target set-up (0.8-1.2 s) now, before "ready", while the caller still
+        # simulates: otherwise it lands in the first observer's request.
+        set_up_numba()
     # The imports leave some millions of objects that every full garbage collection would walk
     # again: 0.2-0.7 s, charged to whichever observer's timed run() it happens to fall in (a
     # 5 µs/step loop measured 262 µs/step). Frozen, they are never walked again. A forked host

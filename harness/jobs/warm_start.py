@@ -17,12 +17,13 @@ render): MuJoCo is imported, never rendered with.
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import importlib
 import os
 import sys
 import warnings
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 
 #: Modules a scenario or sweep worker and an observer host import (the costly part of their start-up).
 #: Not cvxpy (1.1 s): observers import it only to solve a design, which the design cache makes rare.
@@ -50,22 +51,55 @@ def startup_environment(environ: Mapping[str, str] | None = None) -> tuple[objec
     return (sys.executable, tuple(sorted((k, v) for k, v in env.items() if k.startswith(_STARTUP_PREFIXES))))
 
 
-def _one_more(x: float) -> float:
-    return x + 1.0
+#: The BLAS and LAPACK modules numba binds its linear algebra to (imported when numba starts).
+NUMBA_BLAS_MODULES: tuple[str, ...] = ("scipy.linalg.cython_blas", "scipy.linalg.cython_lapack")
 
 
-#: ``_one_more`` compiled (on first use: importing this module must not import numba).
-_compiled: list = []
+def load_numba_blas() -> None:
+    """Load the two SciPy extension modules numba takes BLAS and LAPACK from, without the rest of
+    ``scipy.linalg``.
+
+    Numba imports ``scipy.linalg.cython_blas`` when it starts (to know whether ``np.dot`` can
+    work), and Python runs ``scipy/linalg/__init__.py`` first: all of ``scipy.linalg`` and SciPy's
+    array-API layer, 0.15-0.24 s, for two modules that need none of it (they link BLAS directly).
+    Loaded here from their own files, numba finds them imported; a later ``import scipy.linalg``
+    still runs the package as usual and finds the same two modules. Call before numba is imported;
+    a no-op once ``scipy.linalg`` is imported, and wherever SciPy is laid out otherwise (numba then
+    imports what it always did).
+    """
+    import importlib.machinery
+    import importlib.util
+
+    if "scipy.linalg" in sys.modules or all(name in sys.modules for name in NUMBA_BLAS_MODULES):
+        return
+    try:
+        package = importlib.util.find_spec("scipy.linalg")
+        places = package.submodule_search_locations if package is not None else None
+        if not places:
+            return
+        for name in NUMBA_BLAS_MODULES:
+            if name in sys.modules:
+                continue
+            spec = importlib.machinery.PathFinder.find_spec(name, list(places))
+            if spec is None or spec.loader is None:
+                return
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[name] = module
+            try:
+                spec.loader.exec_module(module)
+            except BaseException:
+                del sys.modules[name]
+                raise
+    except Exception:  # noqa: BLE001 - numba's own import then loads them the usual way
+        return
 
 
 def set_up_numba() -> None:
     """Call one tiny cached kernel: numba sets up its target context (the registries of every
     supported numpy function, 0.8-1.2 s) on the first call of any kernel in a process, cached or not."""
-    if not _compiled:
-        from numba import njit
+    from roadtruth.harness.jobs.target_kernel import one_more
 
-        _compiled.append(njit(cache=True)(_one_more))
-    _compiled[0](1.0)
+    one_more(1.0)
 
 
 def import_observers() -> None:
@@ -85,25 +119,50 @@ def warm_process(*, freeze: bool = True) -> None:
     A module that fails to import is skipped: the worker that needs it imports it again and reports
     the failure where it belongs, with its task.
     """
-    _import_and_freeze(HEAVY_MODULES, freeze=False)
-    try:
-        import_observers()
-    except Exception:  # noqa: BLE001 - the observer's own request reports it
-        pass
-    set_up_numba()
+    load_numba_blas()
+    with collection_paused():
+        _import_and_freeze(HEAVY_MODULES, freeze=False)
+        try:
+            import_observers()
+        except Exception:  # noqa: BLE001 - the observer's own request reports it
+            pass
+        set_up_numba()
     if freeze:
         gc.collect()
         gc.freeze()
 
 
+@contextlib.contextmanager
+def collection_paused(*, freeze: bool = False) -> Iterator[None]:
+    """Garbage collection off for the block (as it was before, after it), then (``freeze``) what the
+    block made moved out of its reach (``gc.freeze``, before collection resumes: the first collection
+    after a pause would otherwise walk everything the block made).
+
+    Imports make objects that live as long as the process: collecting while they are made only walks
+    them again and again (three full collections, 0.15-0.25 s, over a worker's imports); one
+    ``gc.collect`` once they are all made, before ``gc.freeze``, does the same work once.
+    """
+    was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if freeze:
+            gc.freeze()
+        if was_enabled:
+            gc.enable()
+
+
 def _import_and_freeze(modules: tuple[str, ...], *, freeze: bool) -> None:
     """Import ``modules`` (one that fails is skipped: the task that needs it imports it again and
     reports the failure where it belongs), then (``freeze``) ``gc.collect`` and ``gc.freeze``."""
-    for name in modules:
-        try:
-            importlib.import_module(name)
-        except Exception:  # noqa: BLE001, S112 - reported by the task that needs the module
-            continue
+    load_numba_blas()
+    with collection_paused():
+        for name in modules:
+            try:
+                importlib.import_module(name)
+            except Exception:  # noqa: BLE001, S112 - reported by the task that needs the module
+                continue
     if freeze:
         gc.collect()
         gc.freeze()
