@@ -4,6 +4,7 @@ would draw it under itself, and is the same bytes as ``roadtruth report DIR``, w
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -36,9 +37,9 @@ def drawing_calls(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     calls: list[str] = []
     real = scenarios_section.scenario_figures
 
-    def counted(files: Any, plan: FigurePlan, styles: Any) -> list[dict[str, Any]]:
+    def counted(files: Any, plan: FigurePlan) -> list[dict[str, Any]]:
         calls.append(plan.name)
-        return real(files, plan, styles)
+        return real(files, plan)
 
     monkeypatch.setattr(scenarios_section, "scenario_figures", counted)
     return calls
@@ -66,9 +67,15 @@ def test_figures_drawn_under_another_plan_are_not_used(tmp_path: Path, drawing_c
     plan = figure_plan("tiny_step", rows, run.scenario_entry("tiny_step"), truth.events, truth.truth,
                        run.observer_names)
     bogus = [{"id": "fig-bogus", "spec": {"data": []}, "wide": False}]
-    other = FigurePlan(name=plan.name, observers=plan.observers[::-1], states=plan.states,
+    other = FigurePlan(name=plan.name, observers=plan.observers[::-1], styles=plan.styles[::-1], states=plan.states,
                        scored_until_s=plan.scored_until_s, unscored_reason=plan.unscored_reason)
-    build_report(out, figures={other: bogus})  # the observers' colours would differ: drawn again
+    build_report(out, figures={other: bogus})  # the observers in another order: drawn again
+    assert (out / "index.html").read_bytes() == page
+    # The same observers coloured otherwise (drawn in a process that registered other observers,
+    # whose styles follow the registry): drawn again, so lines and legends agree.
+    recoloured = dataclasses.replace(plan, styles=plan.styles[1:] + plan.styles[:1])
+    assert recoloured != plan
+    build_report(out, figures={recoloured: bogus})
     assert (out / "index.html").read_bytes() == page
     build_report(out, figures={plan: bogus})  # the page's own plan: used as given
     assert b"fig-bogus" in (out / "index.html").read_bytes()

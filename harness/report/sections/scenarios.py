@@ -12,7 +12,13 @@ from typing import Any
 
 import pandas as pd
 
-from roadtruth.harness.report.figures import TRUTH_EVENTS, observer_styles, state_figure, trajectory_figure
+from roadtruth.harness.report.figures import (
+    TRUTH_EVENTS,
+    LineStyle,
+    observer_styles,
+    state_figure,
+    trajectory_figure,
+)
 from roadtruth.harness.report.plot_data import PIXEL_COLUMNS, STEPS_PER_SPAN
 from roadtruth.harness.report.ranking import number
 from roadtruth.harness.report.rundata import FLOAT_FORMAT, RunData, ScenarioFiles, state_order
@@ -69,8 +75,12 @@ class FigurePlan:
     """
 
     name: str
-    #: the page's observers, in page order: their line styles colour the figures
+    #: the page's observers, in page order
     observers: tuple[str, ...]
+    #: each of ``observers``' line style on the page (they follow the observers registered in the
+    #: process that draws: a worker without an observer the page's process registered would colour
+    #: the lines unlike the page's legends)
+    styles: tuple[LineStyle, ...]
     #: the scored states, in page order: one figure each
     states: tuple[str, ...]
     scored_until_s: float | None
@@ -78,9 +88,11 @@ class FigurePlan:
 
 
 def figure_plan(name: str, rows: Sequence[Mapping[str, Any]], entry: Mapping[str, Any],
-                events: list[dict[str, Any]], truth: pd.DataFrame, observers: Sequence[str]) -> FigurePlan:
+                events: list[dict[str, Any]], truth: pd.DataFrame, observers: Sequence[str],
+                styles: Mapping[str, LineStyle] | None = None) -> FigurePlan:
     """The plan of scenario ``name``'s figures from its metrics ``rows`` (dicts), its run.json
-    ``entry``, its events and truth table, and the page's ``observers``."""
+    ``entry``, its events and truth table, the page's ``observers`` and their line ``styles``
+    (default: ``observer_styles(observers)`` of this process)."""
     scored = {r["state"] for r in rows if isinstance(r["state"], str) and r["state"]
               and str(r["status"]).startswith("ok") and not pd.isna(r["rmse"])}
     until = scored_until(list(rows))
@@ -90,14 +102,17 @@ def figure_plan(name: str, rows: Sequence[Mapping[str, Any]], entry: Mapping[str
     tevs = truth_events(dict(entry), events)
     reason = next((str(e.get("label", "")) for e in reversed(tevs)
                    if until is not None and float(e["t_s"]) <= until + 1e-6), "")
-    return FigurePlan(name=name, observers=tuple(observers), states=tuple(sorted(scored, key=state_order)),
-                      scored_until_s=until, unscored_reason=reason)
+    observers = tuple(observers)
+    styles = observer_styles(observers) if styles is None else styles
+    return FigurePlan(name=name, observers=observers, styles=tuple(styles[o] for o in observers),
+                      states=tuple(sorted(scored, key=state_order)), scored_until_s=until, unscored_reason=reason)
 
 
-def scenario_figures(files: ScenarioFiles, plan: FigurePlan, styles: Mapping[str, Any]) -> list[dict[str, Any]]:
+def scenario_figures(files: ScenarioFiles, plan: FigurePlan) -> list[dict[str, Any]]:
     """The scenario's figures: its path over the friction map, then truth against the estimates of
-    each state of ``plan``. ``styles``: observer -> line style, for ``plan.observers``."""
+    each state of ``plan``, in the plan's line styles."""
     truth, events, info = files.truth, files.events, files.info
+    styles = dict(zip(plan.observers, plan.styles, strict=True))
     figures = []
     if not truth.empty and {"x_m", "y_m"} <= set(truth.columns):
         figures.append({"id": f"fig-{slug(plan.name)}-path", "spec": trajectory_figure(truth, info, events),
@@ -107,7 +122,7 @@ def scenario_figures(files: ScenarioFiles, plan: FigurePlan, styles: Mapping[str
         if truth.empty and not est:
             continue
         figures.append({"id": f"fig-{slug(plan.name)}-{slug(state)}",
-                        "spec": state_figure(state, truth, est, dict(styles), events, plan.scored_until_s,
+                        "spec": state_figure(state, truth, est, styles, events, plan.scored_until_s,
                                              plan.unscored_reason),
                         "wide": False})
         del est  # a long log's one state is tens of MB: never hold two states' arrays at once
@@ -129,7 +144,7 @@ def drawn_figures(run_dir: Path, name: str, metrics: pd.DataFrame,
     observers = list(dict.fromkeys(metrics["observer"].astype(str).tolist())) if len(metrics) else []
     files = ScenarioFiles(name=name, folder=Path(run_dir) / name, root=Path(run_dir).resolve())
     plan = figure_plan(name, rows, entry, files.events, files.truth, observers)
-    return {plan: scenario_figures(files, plan, observer_styles(observers))}
+    return {plan: scenario_figures(files, plan)}
 
 
 class ScenariosSection(Section):
@@ -146,10 +161,10 @@ class ScenariosSection(Section):
             info = files.info
             events = files.events
             rows = [r for r in run.records if r["scenario"] == name]
-            plan = figure_plan(name, rows, entry, events, files.truth, run.observer_names)
+            plan = figure_plan(name, rows, entry, events, files.truth, run.observer_names, page.styles)
             figures = drawn.get(plan)
             if figures is None:
-                figures = scenario_figures(files, plan, page.styles)
+                figures = scenario_figures(files, plan)
             render = entry.get("render", {}) or {}
             frames = [f for f in render.get("frames", []) if (run.folder / f.get("file", "")).is_file()]
             video = render.get("video")
