@@ -218,3 +218,15 @@ def test_a_diverged_or_crashed_scenario_is_reported_and_the_suite_goes_on(tmp_pa
     assert m.rmse.isna().all()
     html = (out / "index.html").read_text(encoding="utf-8")
     assert "solver exploded" in html and "diverged: test at t=3 s" in html
+
+
+def test_workers_take_the_longest_scenarios_first(tmp_path: Path) -> None:
+    """With several workers the longest simulated durations go first (ties and unknowns keep their
+    order, unknowns last); the e2e runs above show the files do not depend on the order."""
+    from roadtruth.harness.jobs.pipeline import ScenarioTask, longest_first
+
+    durations = {"a": 6.0, "b": 10.0, "c": float("nan"), "d": 10.0, "e": 8.0, "f": 5.0}
+    tasks = [ScenarioTask(name=n, run_dir=tmp_path, observers=(), seed=None, vehicle=None, friction=None,
+                          sensors=None, faults=None, log_rate_hz=100.0, render=False, duration_s=d)
+             for n, d in durations.items()]
+    assert [t.name for t in longest_first(tasks)] == ["b", "d", "e", "a", "f", "c"]

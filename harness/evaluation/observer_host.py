@@ -49,7 +49,6 @@ from __future__ import annotations
 import atexit
 import contextlib
 import copy
-import gc
 import importlib
 import importlib.util
 import math
@@ -237,18 +236,15 @@ def serve(requests: Connection, replies: Connection, parent_pid: int, death_sign
     name_process(HOST_PROCESS_NAME)
     exit_with(parent_pid, parent_pid, death_signal=death_signal)
     load_numba_blas()
-    with collection_paused():  # collected once below, when all of it is made
+    # The imports leave some millions of objects that every full garbage collection would walk
+    # again: 0.2-0.7 s, charged to whichever observer's timed run() it happens to fall in (a
+    # 5 µs/step loop measured 262 µs/step). Made with collection paused and frozen, they are never
+    # walked (a forked host has the caller's frozen already, and nothing else to walk).
+    with collection_paused(freeze=True):
         import_observers()  # numpy, numba kernels and every observer, imported once (if not yet)
         # numba's one-time target set-up (0.8-1.2 s) now, before "ready", while the caller still
         # simulates: otherwise it lands in the first observer's request.
         set_up_numba()
-    # The imports leave some millions of objects that every full garbage collection would walk
-    # again: 0.2-0.7 s, charged to whichever observer's timed run() it happens to fall in (a
-    # 5 µs/step loop measured 262 µs/step). Frozen, they are never walked again. A forked host
-    # skips the collection: it would write to every object the caller shares with it copy-on-write.
-    if not forked:
-        gc.collect()
-    gc.freeze()
     try:
         replies.send(("ready", os.getpid()))
         while True:

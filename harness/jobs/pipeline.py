@@ -78,6 +78,8 @@ class ScenarioTask:
     # Checked observer options (harness/evaluation/observer_options.py): observer -> {option: value}.
     observer_options: dict[str, dict[str, Any]] | None = None
     table_format: str = "csv"  # csv | parquet (harness/files/table_io.py)
+    # Simulated duration [s]: with several workers the longest scenarios are handed out first.
+    duration_s: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -442,7 +444,7 @@ def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress) -> Iter
             warm_up()  # fits in the wait for the workers' server to finish its preload, not at the end
             pool.start_workers()  # one solves the designs every worker needs, once; the others start meanwhile
             presolve_designs(pool.submit_call, _warmup(tasks), hosts=min(jobs, len(tasks)))
-            futures = {pool.submit(task): task for task in tasks}
+            futures = {pool.submit(task): task for task in longest_first(tasks)}
             for fut in as_completed(futures):
                 try:
                     o = fut.result()
@@ -483,6 +485,13 @@ def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress) -> Iter
                 o.entry["timings_s"]["render"] = round(seconds, 4)
                 progress.item(_render_line(o))
             yield o
+
+
+def longest_first(tasks: Sequence[ScenarioTask]) -> list[ScenarioTask]:
+    """The tasks in the order workers take them: longest simulated duration first (ties, and
+    unknown durations last, in the given order), so that the last scenario to finish is a short one
+    and no worker waits long for another. The run's files do not depend on the order."""
+    return sorted(tasks, key=lambda t: -t.duration_s if math.isfinite(t.duration_s) else math.inf)
 
 
 def _warmup(tasks: Sequence[ScenarioTask]) -> Any:
@@ -594,12 +603,13 @@ def run_suite(
     try:
         with atomic_output_dir(out, command="run",
                                inputs=[*(scenarios or []), vehicle, friction, sensors]) as tmp:
+            prepared = [prepare_scenario(n, vehicle, friction) for n in names]
             tasks = [ScenarioTask(name=n, run_dir=tmp, observers=tuple(chosen), seed=seed, vehicle=vehicle,
                                   friction=friction, sensors=sensors, faults=faults, log_rate_hz=log_rate_hz,
                                   render=render, observer_timeout_s=observer_timeout_s,
                                   observer_options=observer_options or None, table_format=table_format,
-                                  folder_label=new_scenario_folder(tmp, prepare_scenario(n, vehicle, friction).name)[0])
-                     for n in names]
+                                  folder_label=new_scenario_folder(tmp, sc.name)[0], duration_s=float(sc.duration_s))
+                     for n, sc in zip(names, prepared, strict=True)]
             outcomes = {o.name: o for o in _run_tasks(tasks, jobs, bar)}
             ordered = [outcomes[n] for n in names]
             metrics = pd.concat([o.metrics for o in ordered], ignore_index=True)

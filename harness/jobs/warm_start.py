@@ -120,16 +120,13 @@ def warm_process(*, freeze: bool = True) -> None:
     the failure where it belongs, with its task.
     """
     load_numba_blas()
-    with collection_paused():
+    with collection_paused(freeze=freeze):
         _import_and_freeze(HEAVY_MODULES, freeze=False)
         try:
             import_observers()
         except Exception:  # noqa: BLE001 - the observer's own request reports it
             pass
         set_up_numba()
-    if freeze:
-        gc.collect()
-        gc.freeze()
 
 
 @contextlib.contextmanager
@@ -139,8 +136,9 @@ def collection_paused(*, freeze: bool = False) -> Iterator[None]:
     after a pause would otherwise walk everything the block made).
 
     Imports make objects that live as long as the process: collecting while they are made only walks
-    them again and again (three full collections, 0.15-0.25 s, over a worker's imports); one
-    ``gc.collect`` once they are all made, before ``gc.freeze``, does the same work once.
+    them again and again (three full collections, 0.15-0.25 s, over a worker's imports). Nor are
+    they collected before the freeze: after a worker's imports, its observers and numba's set-up, a
+    full collection (0.1 s) finds about 10 unreachable objects among 176 000.
     """
     was_enabled = gc.isenabled()
     gc.disable()
@@ -155,17 +153,14 @@ def collection_paused(*, freeze: bool = False) -> Iterator[None]:
 
 def _import_and_freeze(modules: tuple[str, ...], *, freeze: bool) -> None:
     """Import ``modules`` (one that fails is skipped: the task that needs it imports it again and
-    reports the failure where it belongs), then (``freeze``) ``gc.collect`` and ``gc.freeze``."""
+    reports the failure where it belongs) with garbage collection paused, then (``freeze``) ``gc.freeze``."""
     load_numba_blas()
-    with collection_paused():
+    with collection_paused(freeze=freeze):
         for name in modules:
             try:
                 importlib.import_module(name)
             except Exception:  # noqa: BLE001, S112 - reported by the task that needs the module
                 continue
-    if freeze:
-        gc.collect()
-        gc.freeze()
 
 
 #: What a render worker imports (:func:`roadtruth.harness.jobs.pipeline.render_job`).
