@@ -15,7 +15,8 @@ of a second for ``simulate``). The children here write and read bytecode in a pr
 folder (``PYTHONPYCACHEPREFIX``; the untimed first round fills it), so the figures are those of an
 installed package whatever the environment says, and the working tree gets no ``__pycache__``.
 
-Then (unless ``--no-phases``) where ``simulate``'s time goes: the same steps as
+Then (unless ``--no-phases``) where ``simulate``'s time goes: the same steps as the command
+(garbage collection paused over the imports, numba's BLAS loaded alone) and
 ``roadtruth.harness.jobs.pipeline.simulate_to_dir`` timed one by one in fresh processes (imports of
 numpy, pandas, mujoco and numba, the package's own modules, numba's first dispatch, the simulation,
 writing ``truth.csv`` and ``measurements.csv``), best and median of N per phase.
@@ -41,19 +42,23 @@ t0 = time.perf_counter(); phases = {}
 def mark(name):
     global t0
     t = time.perf_counter(); phases[name] = t - t0; t0 = t
+import gc; gc.disable()  # as the command: no collection while it imports, then a freeze
 import numpy; mark("import numpy")
 import pandas; mark("import pandas")
 import mujoco; mark("import mujoco")
 import numba; mark("import numba")
+from roadtruth.harness.jobs.warm_start import load_numba_blas
+load_numba_blas(); mark("numba's BLAS and LAPACK (two SciPy extension modules)")
 from roadtruth.harness.jobs import pipeline
 from roadtruth.harness.truth.simulate import simulate
 from roadtruth.harness.sensors import emulate
+gc.freeze(); gc.enable()
 mark("import roadtruth (simulate path)")
 sc = pipeline.prepare_scenario("step_steer", None, None)
 veh = sc.vehicle_params(); cfg = pipeline.sensor_config(sc, None, None)
 _, sim_seed, sensor_seed = pipeline.scenario_seeds(sc.seed, sc.name, None)
 mark("scenario, vehicle, sensor preset")
-import numba.np.arraymath; mark("numba target set-up: arraymath (imports scipy.linalg)")
+import numba.np.arraymath; mark("numba target set-up: arraymath")
 truth = simulate(sc, seed=sim_seed); first = time.perf_counter() - t0
 truth = simulate(sc, seed=sim_seed); second = time.perf_counter() - t0 - first
 phases["numba target set-up: rest + kernel load from cache"] = max(first - second, 0.0)

@@ -561,8 +561,8 @@ def _start_kernel_command(args: argparse.Namespace, *, freeze: bool) -> None:
     from roadtruth.harness.jobs.warm_start import collection_paused, load_numba_blas
 
     with collection_paused(freeze=freeze):
-        load_numba_blas()
-        _load_shipped_kernels(getattr(args, "start_server", None), args)
+        _load_shipped_kernels(getattr(args, "start_server", None), args)  # the workers' server first
+        load_numba_blas()  # before any kernel runs (numba's first dispatch imports its BLAS)
         importlib.import_module(KERNEL_COMMANDS[args.command])
 
 
