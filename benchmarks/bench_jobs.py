@@ -8,12 +8,16 @@ the script prints best-of-N and median of each and their ratio (the speed-up), a
 before and after. A speed-up can only be judged with both cores free: with other work on the
 machine, the second worker competes for a core and the ratio understates it. ``--against OLD``
 runs the source tree ``OLD`` (an older checkout) in the same rounds, interleaved with this one: a
-before/after on a machine whose speed drifts within minutes.
+before/after on a machine whose speed drifts within minutes. Each run's ``timings.json`` splits its
+time into start (checks, the workers' start-up), the scenarios, and finish (metrics, run.json, the
+page); with the command's imports and exit, medians of these are printed, and how much faster the
+scenarios alone ran on two workers.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import subprocess
@@ -27,16 +31,23 @@ import bench_env
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run_once(jobs: int, suite: str, out: Path, tree: tuple[dict[str, str], Path]) -> float:
+def run_once(jobs: int, suite: str, out: Path, tree: tuple[dict[str, str], Path]) -> tuple[float, dict[str, float]]:
     """Wall time [s] of one ``roadtruth run --no-render --jobs JOBS`` into a new folder under ``out``,
-    with the code of ``tree`` (``bench_env.source_tree``: its environment and working folder)."""
+    with the code of ``tree`` (``bench_env.source_tree``: its environment and working folder), and
+    the run's phases from its ``timings.json`` (empty for code that does not write them)."""
     tree_env, cwd = tree
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), **tree_env}
+    folder = out / f"jobs{jobs}-{time.monotonic_ns()}"
     cmd = [sys.executable, "-m", "roadtruth.harness.cli", "run", "--suite", suite, "--no-render", "--jobs", str(jobs),
-           "--out", str(out / f"jobs{jobs}-{time.monotonic_ns()}")]
+           "--out", str(folder)]
     t = time.perf_counter()
     subprocess.run(cmd, cwd=cwd, env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    return time.perf_counter() - t
+    wall = time.perf_counter() - t
+    timings = json.loads((folder / "timings.json").read_text(encoding="utf-8"))
+    phases = {k: float(v) for k, v in (timings.get("phases_s") or {}).items()}
+    if phases:
+        phases["imports and exit"] = wall - float(timings["wall_s"])
+    return wall, phases
 
 
 def main() -> None:
@@ -52,6 +63,7 @@ def main() -> None:
         trees[f"{a.against.resolve().name} (against)"] = bench_env.source_tree(a.against)
     print(f"cores: {os.cpu_count()}, load average before: {os.getloadavg()[0]:.2f}")
     times: dict[tuple[str, int], list[float]] = {(name, jobs): [] for name in trees for jobs in (1, 2)}
+    phases: dict[tuple[str, int], list[dict[str, float]]] = {key: [] for key in times}
     with tempfile.TemporaryDirectory(prefix="bench-jobs-") as tmp:
         out = Path(tmp)
         for tree in trees.values():
@@ -59,7 +71,10 @@ def main() -> None:
         for _ in range(a.repeats):
             for name, tree in trees.items():
                 for jobs in (1, 2):
-                    times[(name, jobs)].append(run_once(jobs, a.suite, out, tree))
+                    wall, parts = run_once(jobs, a.suite, out, tree)
+                    times[(name, jobs)].append(wall)
+                    if parts:
+                        phases[(name, jobs)].append(parts)
     for name in trees:
         prefix = f"[{name}] " if len(trees) > 1 else ""
         for jobs in (1, 2):
@@ -69,6 +84,17 @@ def main() -> None:
         one, two = times[(name, 1)], times[(name, 2)]
         print(f"{prefix}speed-up --jobs 2 / --jobs 1: best {min(one) / min(two):.2f}x  "
               f"median {statistics.median(one) / statistics.median(two):.2f}x")
+        medians = {}
+        for jobs in (1, 2):
+            runs = phases[(name, jobs)]
+            if runs:
+                medians[jobs] = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+                print(f"{prefix}  --jobs {jobs} phases, median s (timings.json): "
+                      + ", ".join(f"{k} {v:.2f}" for k, v in medians[jobs].items()))
+        if len(medians) == 2:
+            print(f"{prefix}  the scenarios alone: {medians[1]['scenarios'] / medians[2]['scenarios']:.2f}x faster "
+                  f"on two workers; what they cannot share (the rest): {sum(medians[2].values()) - medians[2]['scenarios']:.2f} s "
+                  f"with --jobs 2, {sum(medians[1].values()) - medians[1]['scenarios']:.2f} s with --jobs 1")
     print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 

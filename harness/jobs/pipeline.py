@@ -427,8 +427,11 @@ def crashed_scenario(task: ScenarioTask, crash: WorkerCrashed, tasks: Sequence[S
     return outcome
 
 
-def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress) -> Iterable[ScenarioOutcome]:
-    """Run the scenario tasks; yields outcomes as they complete (any order).
+def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress,
+               clock: dict[str, float] | None = None) -> Iterable[ScenarioOutcome]:
+    """Run the scenario tasks; yields outcomes as they complete (any order). ``clock["first"]`` is
+    set to ``time.perf_counter()`` when the first scenario is handed out (workers ready, designs
+    solved), for ``timings.json``.
 
     With ``jobs > 1`` each worker process runs whole scenarios, renders included; a worker that dies
     (a segfault in compiled code) costs only its scenario (:func:`crashed_scenario`) and is replaced.
@@ -444,6 +447,8 @@ def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress) -> Iter
             warm_up()  # fits in the wait for the workers' server to finish its preload, not at the end
             pool.start_workers()  # one solves the designs every worker needs, once; the others start meanwhile
             presolve_designs(pool.submit_call, _warmup(tasks), hosts=min(jobs, len(tasks)))
+            if clock is not None:
+                clock["first"] = time.perf_counter()
             futures = {pool.submit(task): task for task in longest_first(tasks)}
             for fut in as_completed(futures):
                 try:
@@ -461,6 +466,8 @@ def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress) -> Iter
     # simulates, instead of one after the other in one observer host.
     warm = BackgroundWarmup.start(_warmup(tasks), hosts=2) if tasks else None
     ready = warm.wait if warm is not None else None
+    if clock is not None:
+        clock["first"] = time.perf_counter()
     if not any(t.render for t in tasks):
         for task in tasks:
             o = run_scenario(task, before_observers=ready)
@@ -485,6 +492,15 @@ def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress) -> Iter
                 o.entry["timings_s"]["render"] = round(seconds, 4)
                 progress.item(_render_line(o))
             yield o
+
+
+def _phases(t_start: float, t_first: float, t_last: float, t_end: float) -> dict[str, float]:
+    """A run's wall time in three parts [s]: ``start`` (from the run's start, after the command's
+    imports, to the first scenario handed out: input checks, the workers' start-up or the design
+    warm-up's launch), ``scenarios`` (from then to the last scenario's outcome) and ``finish``
+    (metrics, run.json and the page)."""
+    return {"start": round(t_first - t_start, 3), "scenarios": round(t_last - t_first, 3),
+            "finish": round(t_end - t_last, 3)}
 
 
 def longest_first(tasks: Sequence[ScenarioTask]) -> list[ScenarioTask]:
@@ -610,7 +626,9 @@ def run_suite(
                                   observer_options=observer_options or None, table_format=table_format,
                                   folder_label=new_scenario_folder(tmp, sc.name)[0], duration_s=float(sc.duration_s))
                      for n, sc in zip(names, prepared, strict=True)]
-            outcomes = {o.name: o for o in _run_tasks(tasks, jobs, bar)}
+            clock: dict[str, float] = {}
+            outcomes = {o.name: o for o in _run_tasks(tasks, jobs, bar, clock)}
+            t_last = time.perf_counter()
             ordered = [outcomes[n] for n in names]
             metrics = pd.concat([o.metrics for o in ordered], ignore_index=True)
             write_table(metrics, tmp, "metrics", table_format)
@@ -636,7 +654,9 @@ def run_suite(
             # Times differ between identical runs, so they live only in timings.json, which run.json and
             # the page never show: those stay byte-identical (and `roadtruth report DIR` rebuilds this page).
             write_json({"command": "run", "stages_s": {**totals, "report": round(time.perf_counter() - t, 4)},
-                        "wall_s": round(time.perf_counter() - t_wall, 3), "kernel_target": kernel_target(),
+                        "wall_s": round(time.perf_counter() - t_wall, 3),
+                        "phases_s": _phases(t_wall, clock.get("first", t_wall), t_last, time.perf_counter()),
+                        "kernel_target": kernel_target(),
                         "scenarios_s": {o.entry["name"]: o.entry.get("timings_s", {}) for o in ordered},
                         "us_per_step": {o.entry["name"]: {obs: r.get("us_per_step") for obs, r in o.runs.items()}
                                         for o in ordered}}, tmp / "timings.json")
