@@ -92,9 +92,9 @@ def main() -> None:
                 print(f"{prefix}  --jobs {jobs} phases, median s (timings.json): "
                       + ", ".join(f"{k} {v:.2f}" for k, v in medians[jobs].items()))
         if len(medians) == 2:
-            print(f"{prefix}  the scenarios alone: {medians[1]['scenarios'] / medians[2]['scenarios']:.2f}x faster "
-                  f"on two workers; what they cannot share (the rest): {sum(medians[2].values()) - medians[2]['scenarios']:.2f} s "
-                  f"with --jobs 2, {sum(medians[1].values()) - medians[1]['scenarios']:.2f} s with --jobs 1")
+            print(f"{prefix}  the scenarios alone: {medians[1]['work'] / medians[2]['work']:.2f}x faster "
+                  f"on two workers; what they cannot share (the rest): {sum(medians[2].values()) - medians[2]['work']:.2f} s "
+                  f"with --jobs 2, {sum(medians[1].values()) - medians[1]['work']:.2f} s with --jobs 1")
     print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 

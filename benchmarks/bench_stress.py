@@ -9,12 +9,16 @@ worker start-up and writing included: what a user waits for), after one unmeasur
 (design and numba caches warm). The executors alternate, so a change of machine load hits each;
 printed: best-of-N and median per executor, the speed-up of ``--jobs 2`` over ``--jobs 1`` and the
 ratio of ``--dask local --jobs 2`` (a real LocalCluster on loopback) to ``--jobs 2``, with the load
-average before and after. Ratios of two workers can only be judged with both cores free.
+average before and after, then the medians of each sweep's phases from its ``timings.json``
+(start: checks and the workers' start-up; work: the cases; finish: tables and page; and the
+command's imports and exit) and how much faster the cases alone ran on two workers. Ratios of two
+workers can only be judged with both cores free.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import subprocess
@@ -34,14 +38,25 @@ SWEEP = ["--scenario", "step_steer", "--observer", "kf_bicycle,lpv_wang", "--fri
          "--faults", "none;gnss:dropout=0.2", "--seed", "0", "--fresh"]
 
 
+#: label -> each measured sweep's phases from its timings.json (code that writes them), in seconds.
+PHASES: dict[str, list[dict[str, float]]] = {}
+
+
 def sweep_once(label: str, extra: list[str], seeds: int, out: Path) -> float:
     """Wall time [s] of one ``roadtruth stress`` of the benchmark sweep with ``extra`` options."""
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), **TREE_ENV}
     cmd = [sys.executable, "-m", "roadtruth.harness.cli", "stress", *SWEEP, "--seeds", str(seeds), *extra,
-           "--out", str(out / f"{label}-{time.monotonic_ns()}")]
+           "--out", str(out / f"{label}-{(stamp := time.monotonic_ns())}")]
     t = time.perf_counter()
     subprocess.run(cmd, cwd=ROOT_DIR[0], env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    return time.perf_counter() - t
+    wall = time.perf_counter() - t
+    folder = out / f"{label}-{stamp}"
+    timings = json.loads((folder / "timings.json").read_text(encoding="utf-8"))
+    parts = {k: float(v) for k, v in (timings.get("phases_s") or {}).items()}
+    if parts:
+        parts["imports and exit"] = wall - float(timings["wall_s"])
+        PHASES.setdefault(label, []).append(parts)
+    return wall
 
 
 def main() -> None:
@@ -74,6 +89,17 @@ def main() -> None:
                 f"median {statistics.median(times[num]) / statistics.median(times[den]):.2f}x")
 
     print(f"speed-up --jobs 2 over --jobs 1 (time 1 / time 2): {ratio('--jobs 1', '--jobs 2')}")
+    medians: dict[str, dict[str, float]] = {}
+    for label in times:
+        runs = PHASES.get(label.replace(" ", ""), [])[-len(times[label]):] if times[label] else []
+        if runs:
+            medians[label] = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+            print(f"  {label} phases, median s (timings.json): "
+                  + ", ".join(f"{k} {v:.2f}" for k, v in medians[label].items()))
+    if "--jobs 1" in medians and "--jobs 2" in medians:
+        one, two = medians["--jobs 1"], medians["--jobs 2"]
+        print(f"  the cases alone: {one['work'] / two['work']:.2f}x faster on two workers; the rest "
+              f"{sum(two.values()) - two['work']:.2f} s with --jobs 2, {sum(one.values()) - one['work']:.2f} s with --jobs 1")
     if not a.skip_dask:
         print(f"--dask local --jobs 2 over --jobs 2 (time / time): {ratio('--dask local --jobs 2', '--jobs 2')}")
     print(f"load average after: {os.getloadavg()[0]:.2f}")

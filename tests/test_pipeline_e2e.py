@@ -60,6 +60,11 @@ def test_every_file_exists_and_is_well_formed(runs: tuple[Path, Path, list[str]]
     timings = json.loads((a / "timings.json").read_text())  # times live apart: run.json is reproducible
     assert {"simulate", "sensors", "observers", "scoring", "render", "report"} <= set(timings["stages_s"])
     assert timings["wall_s"] > 0 and "timings_s" not in run and "wall_s" not in run
+    # The phases partition the run's wall time (each rounded to 1 ms).
+    phases = timings["phases_s"]
+    assert set(phases) == {"start", "work", "finish"} and min(phases.values()) >= 0
+    assert sum(phases.values()) == pytest.approx(timings["wall_s"], abs=0.004)
+    assert phases["work"] >= timings["stages_s"]["simulate"] / 2  # two workers at most share the scenarios
     from numba.core import config as numba_config  # per-step times name the code they timed
 
     assert timings["kernel_target"] == (numba_config.CPU_NAME or "host")

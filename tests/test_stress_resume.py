@@ -55,6 +55,10 @@ def test_rerun_loads_every_case_and_writes_the_same_bytes(tiny: Path, tmp_path: 
     assert len(list((tmp_path / "cache" / CACHE_KIND).glob("*.json"))) == 4
     again = _sweep(tiny, tmp_path / "b")
     assert (_timings(again)["n_computed"], _timings(again)["n_cached"]) == (0, 4)
+    # The phases partition each sweep's wall time; a sweep served from the cache runs no case.
+    for t in (_timings(first), _timings(again)):
+        assert sum(t["phases_s"].values()) == pytest.approx(t["wall_s"], abs=0.004)
+    assert _timings(first)["phases_s"]["work"] > 0 and _timings(again)["phases_s"]["work"] == 0
     for name in RESULT_FILES:  # us_per_step included: a loaded case keeps the measurement it was made with
         assert (first / name).read_bytes() == (again / name).read_bytes(), name
     # --fresh recomputes everything; only the time measurements may differ
@@ -159,5 +163,9 @@ def test_worker_processes_store_their_own_cases(tiny: Path, tmp_path: Path, monk
     assert len(list((tmp_path / "cache" / CACHE_KIND).glob("*.json"))) == 4
     again = _sweep(tiny, tmp_path / "b", jobs=2)
     assert (_timings(again)["n_computed"], _timings(again)["n_cached"]) == (0, 4)
+    # The phases partition each sweep's wall time; a sweep served from the cache runs no case.
+    for t in (_timings(first), _timings(again)):
+        assert sum(t["phases_s"].values()) == pytest.approx(t["wall_s"], abs=0.004)
+    assert _timings(first)["phases_s"]["work"] > 0 and _timings(again)["phases_s"]["work"] == 0
     for name in RESULT_FILES:
         assert (first / name).read_bytes() == (again / name).read_bytes(), name

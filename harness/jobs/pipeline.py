@@ -494,12 +494,12 @@ def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress,
             yield o
 
 
-def _phases(t_start: float, t_first: float, t_last: float, t_end: float) -> dict[str, float]:
-    """A run's wall time in three parts [s]: ``start`` (from the run's start, after the command's
-    imports, to the first scenario handed out: input checks, the workers' start-up or the design
-    warm-up's launch), ``scenarios`` (from then to the last scenario's outcome) and ``finish``
-    (metrics, run.json and the page)."""
-    return {"start": round(t_first - t_start, 3), "scenarios": round(t_last - t_first, 3),
+def run_phases(t_start: float, t_first: float, t_last: float, t_end: float) -> dict[str, float]:
+    """A run's or sweep's wall time in three parts [s] (``timings.json``: ``phases_s``): ``start``
+    (from its start, after the command's imports, to the first scenario or case handed out: input
+    checks, the workers' start-up, the design warm-up's launch), ``work`` (from then to the last
+    outcome) and ``finish`` (the tables, run.json and the page)."""
+    return {"start": round(t_first - t_start, 3), "work": round(t_last - t_first, 3),
             "finish": round(t_end - t_last, 3)}
 
 
@@ -655,7 +655,7 @@ def run_suite(
             # the page never show: those stay byte-identical (and `roadtruth report DIR` rebuilds this page).
             write_json({"command": "run", "stages_s": {**totals, "report": round(time.perf_counter() - t, 4)},
                         "wall_s": round(time.perf_counter() - t_wall, 3),
-                        "phases_s": _phases(t_wall, clock.get("first", t_wall), t_last, time.perf_counter()),
+                        "phases_s": run_phases(t_wall, clock.get("first", t_wall), t_last, time.perf_counter()),
                         "kernel_target": kernel_target(),
                         "scenarios_s": {o.entry["name"]: o.entry.get("timings_s", {}) for o in ordered},
                         "us_per_step": {o.entry["name"]: {obs: r.get("us_per_step") for obs, r in o.runs.items()}

@@ -329,9 +329,10 @@ def dask_batches(cases: list[StressCase], workers: int) -> list[list[StressCase]
     return [cases[i:i + size] for i in range(0, len(cases), size)]
 
 
-def _run_local(cases: list[StressCase], jobs: int) -> Iterator[CaseResult]:
+def _run_local(cases: list[StressCase], jobs: int, clock: dict[str, float]) -> Iterator[CaseResult]:
     """Run the cases in this process or in ``jobs`` supervised worker processes (any order); a worker
-    that dies costs only its case (``error: worker crashed (signal N)``) and is replaced."""
+    that dies costs only its case (``error: worker crashed (signal N)``) and is replaced.
+    ``clock["first"]``: when the first case was handed out (``time.perf_counter()``)."""
     from roadtruth.harness.jobs.design_warmup import BackgroundWarmup, presolve_designs
     from roadtruth.harness.jobs.pipeline import process_pool
     from roadtruth.harness.jobs.worker_pool import WorkerCrashed
@@ -339,6 +340,7 @@ def _run_local(cases: list[StressCase], jobs: int) -> Iterator[CaseResult]:
     if jobs <= 1 or len(cases) <= 1:
         # On a fresh install the kernels compile on both cores while the first case simulates.
         warm = BackgroundWarmup.start(_warmup(cases), hosts=2) if cases else None
+        clock["first"] = time.perf_counter()
         for c in cases:
             yield run_case(c, before_observers=warm.wait if warm is not None else None)
         return
@@ -352,6 +354,7 @@ def _run_local(cases: list[StressCase], jobs: int) -> Iterator[CaseResult]:
         presolve_designs(pool.submit_call, _warmup(cases), hosts=min(jobs, len(cases)))
         # One case per task: a round trip costs well under a millisecond against ~0.1 s per case, and
         # single cases keep the workers evenly loaded to the end and a crash costs one case.
+        clock["first"] = time.perf_counter()
         futures = {pool.submit(c): c for c in cases}
         for fut in as_completed(futures):
             try:
@@ -390,6 +393,7 @@ def _run_dask(cases: list[StressCase], address: str, jobs: int, info: dict[str, 
         # A local cluster's workers share this machine's cores; a remote worker's cores are unknown.
         presolve_designs(lambda fn, arg: client.submit(fn, arg, pure=False), _warmup(cases),
                          hosts=jobs if cluster is not None else 1)
+        info["first"] = time.perf_counter()
         futures = client.map(run_cases, dask_batches(cases, info["workers"] or jobs), pure=False)
         for fut in dask_completed(futures):
             yield from fut.result()
@@ -462,6 +466,7 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
         Bad scenario, observer, friction, fault spec, seed count or Dask address (before any work).
     """
     from roadtruth.harness.evaluation.estimate import check_observer_timeout
+    from roadtruth.harness.jobs.pipeline import run_phases
     from roadtruth.harness.jobs.stress_cache import case_keys, load_cached, store_finished
     from roadtruth.harness.report.stress_report import summarize, write_index
 
@@ -495,7 +500,7 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
     if dask is None:  # local processes share this machine's case cache: each stores its own cases
         todo = [dataclasses.replace(c, cache_key=keys.get(c.index)) for c in todo]
 
-    dask_info: dict[str, Any] = {}
+    execution: dict[str, Any] = {}  # how the cases ran: Dask start-up and workers, when the first was handed out
     bar = Progress(len(todo), progress, desc="roadtruth stress")
     if results:
         bar.note(f"{len(results)} of {len(cases)} cases loaded from the case cache (--fresh recomputes them)")
@@ -503,7 +508,7 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
     try:
         with atomic_output_dir(out, command="stress", inputs=[*(scenarios or []), *fr_list]) as tmp:
             t_run = time.perf_counter()
-            stream = (_run_dask(todo, dask, jobs, dask_info) if dask else _run_local(todo, jobs)) if todo else ()
+            stream = (_run_dask(todo, dask, jobs, execution) if dask else _run_local(todo, jobs, execution)) if todo else ()
             for r in stream:
                 results[r.index] = r
                 if not r.stored:  # at once: a killed sweep keeps what it finished
@@ -512,7 +517,8 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
                 bar.item(f"case {c.index}: {c.scenario} friction={c.friction} faults={c.faults} "
                          f"seed#{c.seed_index}: {r.rows['truth_status'].iloc[0] if len(r.rows) else '?'}, "
                          f"{r.seconds:.1f} s")
-            run_s = time.perf_counter() - t_run
+            t_last = time.perf_counter()
+            run_s = t_last - t_run
             rows = pd.concat([results[c.index].rows for c in cases], ignore_index=True)
             write_table(rows, tmp, "stress", table_format)
             summary = summarize(rows)
@@ -523,7 +529,7 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
                 "observers": chosen, "frictions": fr_list, "faults": fa_list, "seeds": n_seeds,
                 "base_seed": base, "seed_values": seed_values, "n_cases": len(cases), "jobs": jobs,
                 "executor": ("dask " + dask) if dask else ("processes" if jobs > 1 else "in-process"),
-                "dask": {"workers": dask_info["workers"]} if "workers" in dask_info else None,
+                "dask": {"workers": execution["workers"]} if "workers" in execution else None,
                 "float_format": FLOAT_FORMAT, "table_format": table_format,
                 "observer_options": options_record(observer_options),
                 "case_errors": {str(c.index): results[c.index].traceback for c in cases
@@ -539,8 +545,10 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
                         "computed_case_sum_s": round(sum(case_s), 3),
                         "computed_case_mean_s": round(sum(case_s) / len(case_s), 3) if case_s else None,
                         "computed_cases_per_s": round(len(todo) / run_s, 4) if todo and run_s > 0 else None,
-                        "dask_startup_s": dask_info.get("startup_s"),
-                        "wall_s": round(time.perf_counter() - t_wall, 3)}, tmp / "timings.json")
+                        "dask_startup_s": execution.get("startup_s"),
+                        "wall_s": round(time.perf_counter() - t_wall, 3),
+                        "phases_s": run_phases(t_wall, execution.get("first", t_last), t_last,
+                                            time.perf_counter())}, tmp / "timings.json")
     finally:
         bar.close()
     bar.note(f"wrote {out.resolve()}: {len(cases)} cases ({len(cases) - len(todo)} from the case cache) "
