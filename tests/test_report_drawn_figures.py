@@ -98,3 +98,32 @@ def test_a_drawn_plan_reads_the_scored_until_time_as_the_page_reads_it_back(tmp_
                             files.events, files.truth, run.observer_names)
     assert page_plan.scored_until_s == pytest.approx(until, rel=1e-9) and page_plan.scored_until_s != until
     assert list(drawn) == [page_plan]
+
+
+def test_a_serial_run_does_the_page_s_one_time_work_beside_its_scenarios(tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """Without workers the page's one-time work (templates, plotly.js) runs in a thread beside the
+    scenarios, and is finished before the page is assembled."""
+    import threading
+
+    from roadtruth.harness.report import builder
+
+    events: list[tuple[str, str]] = []
+    real_warm, real_build = builder.warm_up, scenarios_section.ScenariosSection.context
+
+    def warm() -> None:
+        events.append(("warm-up started", threading.current_thread().name))
+        real_warm()
+        events.append(("warm-up done", threading.current_thread().name))
+
+    def context(self: Any, run: Any, page: Any) -> Any:
+        events.append(("page", threading.current_thread().name))
+        return real_build(self, run, page)
+
+    monkeypatch.setattr(builder, "warm_up", warm)
+    monkeypatch.setattr(scenarios_section.ScenariosSection, "context", context)
+    run_suite(scenarios=[str(_tiny_scenario(tmp_path))], observers=OBSERVERS, seed=5, out=tmp_path / "run",
+              render=False, progress=False)
+    assert [e for e, _ in events] == ["warm-up started", "warm-up done", "page"]
+    assert events[0][1] == events[1][1] == "roadtruth-page-warm-up"
+    assert events[2][1] == threading.main_thread().name

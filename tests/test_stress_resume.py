@@ -169,3 +169,23 @@ def test_worker_processes_store_their_own_cases(tiny: Path, tmp_path: Path, monk
     assert _timings(first)["phases_s"]["work"] > 0 and _timings(again)["phases_s"]["work"] == 0
     for name in RESULT_FILES:
         assert (first / name).read_bytes() == (again / name).read_bytes(), name
+
+
+def test_a_serial_sweep_does_the_page_s_one_time_work_beside_its_cases(tiny: Path, tmp_path: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """Without workers the page's one-time work runs in a thread beside the cases and is finished
+    before the page is written; a sweep served from the case cache does it in line."""
+    import threading
+
+    from roadtruth.harness.report import stress_report
+
+    calls: list[str] = []
+    real_warm, real_page = stress_report.warm_up, stress_report.stress_page
+    monkeypatch.setattr(stress_report, "warm_up", lambda: (calls.append(threading.current_thread().name), real_warm()))
+    monkeypatch.setattr(stress_report, "stress_page",
+                        lambda *a, **k: (calls.append("page"), real_page(*a, **k))[1])
+    _sweep(tiny, tmp_path / "a")
+    assert calls == ["roadtruth-page-warm-up", "page"]
+    calls.clear()
+    _sweep(tiny, tmp_path / "b")  # every case from the cache: nothing to overlap
+    assert calls == ["page"]

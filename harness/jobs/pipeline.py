@@ -23,9 +23,11 @@ import os
 # Offscreen rendering: the GL back-end is chosen when mujoco is first imported.
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+import contextlib  # noqa: E402
 import functools  # noqa: E402
 import math  # noqa: E402
 import shutil  # noqa: E402
+import threading  # noqa: E402
 import time  # noqa: E402
 import traceback  # noqa: E402
 import zlib  # noqa: E402
@@ -494,6 +496,20 @@ def _run_tasks(tasks: list[ScenarioTask], jobs: int, progress: Progress,
             yield o
 
 
+def beside(work: Callable[[], None]) -> threading.Thread:
+    """Start ``work`` (a page's one-time work: templates compiled, plotly.js read) in a daemon
+    thread and return it (join it before the page). A serial run's process waits on its observer
+    host for much of each scenario, and the thread takes those waits instead of the run's end; an
+    exception in it is left for the page itself to raise."""
+    def run() -> None:
+        with contextlib.suppress(Exception):
+            work()
+
+    thread = threading.Thread(target=run, name="roadtruth-page-warm-up", daemon=True)
+    thread.start()
+    return thread
+
+
 def run_phases(t_start: float, t_first: float, t_last: float, t_end: float) -> dict[str, float]:
     """A run's or sweep's wall time in three parts [s] (``timings.json``: ``phases_s``): ``start``
     (from its start, after the command's imports, to the first scenario or case handed out: input
@@ -598,6 +614,7 @@ def run_suite(
     """
     from roadtruth.harness.evaluation.estimate import check_observer_timeout
     from roadtruth.harness.report import build_report
+    from roadtruth.harness.report.builder import warm_up as build_report_warm_up
 
     t_wall = time.perf_counter()
     check_log_rate(log_rate_hz)
@@ -627,8 +644,12 @@ def run_suite(
                                   folder_label=new_scenario_folder(tmp, sc.name)[0], duration_s=float(sc.duration_s))
                      for n, sc in zip(names, prepared, strict=True)]
             clock: dict[str, float] = {}
+            # Workers: the page's one-time work fits in the wait for their server (_run_tasks).
+            page_warm = beside(build_report_warm_up) if tasks and (jobs <= 1 or len(tasks) <= 1) else None
             outcomes = {o.name: o for o in _run_tasks(tasks, jobs, bar, clock)}
             t_last = time.perf_counter()
+            if page_warm is not None:
+                page_warm.join()
             ordered = [outcomes[n] for n in names]
             metrics = pd.concat([o.metrics for o in ordered], ignore_index=True)
             write_table(metrics, tmp, "metrics", table_format)

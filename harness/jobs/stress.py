@@ -466,9 +466,9 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
         Bad scenario, observer, friction, fault spec, seed count or Dask address (before any work).
     """
     from roadtruth.harness.evaluation.estimate import check_observer_timeout
-    from roadtruth.harness.jobs.pipeline import run_phases
+    from roadtruth.harness.jobs.pipeline import beside, run_phases
     from roadtruth.harness.jobs.stress_cache import case_keys, load_cached, store_finished
-    from roadtruth.harness.report.stress_report import summarize, write_index
+    from roadtruth.harness.report.stress_report import summarize, warm_up, write_index
 
     t_wall = time.perf_counter()
     n_seeds = parse_seed_count(seeds)
@@ -508,6 +508,8 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
     try:
         with atomic_output_dir(out, command="stress", inputs=[*(scenarios or []), *fr_list]) as tmp:
             t_run = time.perf_counter()
+            # Local workers: the page's one-time work fits in the wait for their server (_run_local).
+            page_warm = beside(warm_up) if todo and (dask is not None or jobs <= 1 or len(todo) <= 1) else None
             stream = (_run_dask(todo, dask, jobs, execution) if dask else _run_local(todo, jobs, execution)) if todo else ()
             for r in stream:
                 results[r.index] = r
@@ -519,6 +521,8 @@ def run_stress(*, scenarios: list[str] | None, suite_name: str = "stress", obser
                          f"{r.seconds:.1f} s")
             t_last = time.perf_counter()
             run_s = t_last - t_run
+            if page_warm is not None:
+                page_warm.join()
             rows = pd.concat([results[c.index].rows for c in cases], ignore_index=True)
             write_table(rows, tmp, "stress", table_format)
             summary = summarize(rows)
