@@ -551,8 +551,8 @@ def _start_kernel_command(args: argparse.Namespace, *, freeze: bool) -> None:
     """Load the shipped kernels and import the command's module with garbage collection paused, then
     (``freeze``) move what that made out of the collector's reach.
 
-    Importing pandas, numba, MuJoCo and the harness makes about a million objects that live as long
-    as the process. Collected as they are made, they cost three full collections walking all of them
+    Importing pandas, numba, MuJoCo and the harness makes some 150 000 tracked objects that live as
+    long as the process. Collected as they are made, they cost three full collections walking them
     (0.15-0.25 s of a 1.4 s ``roadtruth simulate``); frozen (``gc.freeze``) once they are made, no
     collection walks them again, and the command's own garbage is still collected as usual. Only a
     process that exists for the command freezes: in a caller's process (a test calling :func:`main`)

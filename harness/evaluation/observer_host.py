@@ -236,7 +236,7 @@ def serve(requests: Connection, replies: Connection, parent_pid: int, death_sign
     name_process(HOST_PROCESS_NAME)
     exit_with(parent_pid, parent_pid, death_signal=death_signal)
     load_numba_blas()
-    # The imports leave some millions of objects that every full garbage collection would walk
+    # The imports leave some 150 000-200 000 tracked objects that every full garbage collection would walk
     # again: 0.2-0.7 s, charged to whichever observer's timed run() it happens to fall in (a
     # 5 µs/step loop measured 262 µs/step). Made with collection paused and frozen, they are never
     # walked (a forked host has the caller's frozen already, and nothing else to walk).
