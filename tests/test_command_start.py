@@ -97,3 +97,29 @@ def test_collection_pause_gives_back_the_state_it_found() -> None:
         assert not gc.isenabled()  # a caller that had collection off keeps it off
     finally:
         gc.enable()
+
+
+def test_a_workers_server_leaves_without_the_teardown_and_its_children_keep_theirs() -> None:
+    code = textwrap.dedent("""
+        import os, sys
+        from roadtruth.harness.jobs.warm_start import leave_without_teardown
+
+        class Noted:
+            def __del__(self):
+                sys.stdout.write(f"torn down in {'child' if os.getpid() != parent else 'parent'}\\n")
+                sys.stdout.flush()
+
+        parent = os.getpid()
+        kept = Noted()  # freed only by the interpreter's teardown
+        leave_without_teardown()
+        child = os.fork()
+        if child == 0:
+            sys.exit(0)  # a child that exits normally keeps its teardown
+        os.waitpid(child, 0)
+        sys.stdout.write("unflushed line of the parent")  # flushed by the quick exit
+        sys.exit(0)
+    """)
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout == "torn down in child\nunflushed line of the parent"
+

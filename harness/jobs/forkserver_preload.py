@@ -7,6 +7,7 @@ forks; it never renders, so its workers may still make an OpenGL context after t
 
 from __future__ import annotations
 
-from roadtruth.harness.jobs.warm_start import warm_process
+from roadtruth.harness.jobs.warm_start import leave_without_teardown, warm_process
 
 warm_process()
+leave_without_teardown()

@@ -5,6 +5,7 @@ a scenario worker needs (about 2 s of CPU a renderer never uses). It never rende
 
 from __future__ import annotations
 
-from roadtruth.harness.jobs.warm_start import warm_renderer
+from roadtruth.harness.jobs.warm_start import leave_without_teardown, warm_renderer
 
 warm_renderer()
+leave_without_teardown()

@@ -51,6 +51,32 @@ def startup_environment(environ: Mapping[str, str] | None = None) -> tuple[objec
     return (sys.executable, tuple(sorted((k, v) for k, v in env.items() if k.startswith(_STARTUP_PREFIXES))))
 
 
+def leave_without_teardown() -> None:
+    """Make this process (a workers' forkserver) end at interpreter shutdown without the teardown.
+
+    A forkserver exits when the command that started it has exited, and then spends about 0.1 s
+    freeing the modules it imported one by one (numba, llvmlite, pandas, MuJoCo). It holds the
+    command's stdout and stderr, so anything reading them to the end (a pipe into ``tee``, a
+    caller capturing the output) waits that long after the command is done. The exit handler
+    registered here runs before the modules are torn down; it flushes stdout and stderr and leaves
+    with the exit status 0 the forkserver ends with. Only in this process: the children it forks
+    inherit the handler but leave with ``os._exit`` themselves, and the handler checks the pid.
+    """
+    import atexit
+
+    pid = os.getpid()
+
+    def leave() -> None:
+        if os.getpid() != pid:
+            return
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):
+                stream.flush()
+        os._exit(0)
+
+    atexit.register(leave)
+
+
 #: The BLAS and LAPACK modules numba binds its linear algebra to (imported when numba starts).
 NUMBA_BLAS_MODULES: tuple[str, ...] = ("scipy.linalg.cython_blas", "scipy.linalg.cython_lapack")
 
