@@ -66,3 +66,16 @@ def source_tree(root: Path) -> tuple[dict[str, str], Path]:
     if any(not Path(f).resolve().is_relative_to(root) for f in probe):
         raise SystemExit(f"--root {root}: its code is not what would run (imported from {probe})")
     return env, tree
+
+
+def phases_of(folder: Path, wall_s: float) -> dict[str, float]:
+    """The phases of the run or sweep written to ``folder`` (its ``timings.json``: ``phases_s``),
+    with ``imports and exit``: the command's ``wall_s`` outside them. Empty for code that does not
+    write phases (an older tree)."""
+    import json
+
+    timings = json.loads((Path(folder) / "timings.json").read_text(encoding="utf-8"))
+    phases = {k: float(v) for k, v in (timings.get("phases_s") or {}).items()}
+    if phases:
+        phases["imports and exit"] = wall_s - float(timings["wall_s"])
+    return phases

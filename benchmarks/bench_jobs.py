@@ -17,7 +17,6 @@ scenarios alone ran on two workers.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
 import subprocess
@@ -43,11 +42,7 @@ def run_once(jobs: int, suite: str, out: Path, tree: tuple[dict[str, str], Path]
     t = time.perf_counter()
     subprocess.run(cmd, cwd=cwd, env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     wall = time.perf_counter() - t
-    timings = json.loads((folder / "timings.json").read_text(encoding="utf-8"))
-    phases = {k: float(v) for k, v in (timings.get("phases_s") or {}).items()}
-    if phases:
-        phases["imports and exit"] = wall - float(timings["wall_s"])
-    return wall, phases
+    return wall, bench_env.phases_of(folder, wall)
 
 
 def main() -> None:

@@ -18,7 +18,6 @@ workers can only be judged with both cores free.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
 import subprocess
@@ -50,11 +49,8 @@ def sweep_once(label: str, extra: list[str], seeds: int, out: Path) -> float:
     t = time.perf_counter()
     subprocess.run(cmd, cwd=ROOT_DIR[0], env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     wall = time.perf_counter() - t
-    folder = out / f"{label}-{stamp}"
-    timings = json.loads((folder / "timings.json").read_text(encoding="utf-8"))
-    parts = {k: float(v) for k, v in (timings.get("phases_s") or {}).items()}
+    parts = bench_env.phases_of(out / f"{label}-{stamp}", wall)
     if parts:
-        parts["imports and exit"] = wall - float(timings["wall_s"])
         PHASES.setdefault(label, []).append(parts)
     return wall
 
@@ -91,7 +87,7 @@ def main() -> None:
     print(f"speed-up --jobs 2 over --jobs 1 (time 1 / time 2): {ratio('--jobs 1', '--jobs 2')}")
     medians: dict[str, dict[str, float]] = {}
     for label in times:
-        runs = PHASES.get(label.replace(" ", ""), [])[-len(times[label]):] if times[label] else []
+        runs = PHASES.get(label.replace(" ", ""), [])
         if runs:
             medians[label] = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
             print(f"  {label} phases, median s (timings.json): "

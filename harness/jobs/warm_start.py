@@ -145,9 +145,8 @@ def warm_process(*, freeze: bool = True) -> None:
     A module that fails to import is skipped: the worker that needs it imports it again and reports
     the failure where it belongs, with its task.
     """
-    load_numba_blas()
     with collection_paused(freeze=freeze):
-        _import_and_freeze(HEAVY_MODULES, freeze=False)
+        _import_and_freeze(HEAVY_MODULES, freeze=False)  # numba's BLAS first, then the imports
         try:
             import_observers()
         except Exception:  # noqa: BLE001 - the observer's own request reports it
