@@ -273,3 +273,90 @@ def test_an_edited_vehicle_file_is_read_again(tmp_path) -> None:
     path.write_text(text.replace("\nmass_kg: 1500.0", "\nmass_kg: 1645.25"))
     assert simulate(sc, vehicle=str(path)).vehicle.mass_kg == pytest.approx(1645.25)
     assert simulate(sc, vehicle=str(path)).vehicle is simulate(sc, vehicle=str(path)).vehicle
+
+
+def _floor_raised(monkeypatch: pytest.MonkeyPatch, dz_m: float) -> None:
+    """Build the physics model with its floor plane ``dz_m`` higher, so that the chassis box comes near it."""
+    import re
+
+    import roadtruth.harness.truth.simulate as sim
+
+    build = sim.build_mjcf
+
+    def raised(*a, **k):
+        def lift(mo: re.Match) -> str:
+            x, y, z = (float(v) for v in mo.group(2).split())
+            return f'{mo.group(1)}{x!r} {y!r} {z + dz_m!r}"'
+
+        return re.sub(r'(<geom name="floor"[^>]*? pos=")([^"]+)"', lift, build(*a, **k), count=1)
+
+    monkeypatch.setattr(sim, "build_mjcf", raised)
+
+
+def _contact_skipped_per_step(sc, steps: int) -> list[bool]:
+    """Whether MuJoCo's contact pass was switched off for each of the first ``steps`` steps (interpreted loop)."""
+    import mujoco
+
+    import roadtruth.harness.truth.simulate as sim
+
+    p = sim._prepare(sc, None, 0.001)
+    m, d = p.model, p.data
+    skipped: list[bool] = []
+
+    def step1(_m: int, _d: int) -> None:
+        skipped.append(bool(m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT))
+        mujoco.mj_step1(m, d)
+
+    sim._run.py_func(step1, lambda _m, _d: mujoco.mj_step2(m, d), 0, 0, 0, steps, *p.args[2:])
+    return skipped
+
+
+def test_contact_check_is_skipped_only_far_from_the_floor(monkeypatch: pytest.MonkeyPatch) -> None:
+    # At rest on its wheels the chassis box is 0.22 m above the floor: the collision pass is skipped
+    # from the second step on (the first has no kinematics yet) ...
+    sc = dataclasses.replace(load_scenario("step_steer"), duration_s=0.2)
+    skipped = _contact_skipped_per_step(sc, 100)
+    assert skipped[0] is False and all(skipped[1:])
+    # ... and never with the box 2 cm above the floor (at 20 m/s the gate is 0.05 + 2 dt 20 = 0.09 m).
+    _floor_raised(monkeypatch, 0.20)
+    assert not any(_contact_skipped_per_step(sc, 100))
+
+
+def test_skipping_the_contact_check_changes_no_bit_even_when_the_box_touches(monkeypatch: pytest.MonkeyPatch) -> None:
+    import roadtruth.harness.truth.simulate as sim
+
+    sc = load_scenario("fishhook")
+    free = simulate(sc)
+    # Floor 4.5 cm under the box at rest: skipped there (gate 0 + 2 dt |v| = 3.6 cm), while the roll of
+    # the fishhook puts the box's lower edge on the floor.
+    _floor_raised(monkeypatch, 0.175)
+    monkeypatch.setattr(sim, "CONTACT_GATE_M", 0.0)
+    gated = simulate(sc)
+    monkeypatch.setattr(sim, "CONTACT_GATE_M", math.inf)  # every step checked, as MuJoCo does by itself
+    checked = simulate(sc)
+    assert gated.status == checked.status == "ok"
+    assert np.array_equal(gated.frame.to_numpy(), checked.frame.to_numpy(), equal_nan=True)
+    assert np.array_equal(gated.qpos, checked.qpos)
+    # The contact did act: the car's roll differs from the run on the real floor.
+    assert np.max(np.abs(gated.frame["roll_rad"].to_numpy() - free.frame["roll_rad"].to_numpy())) > 1e-4
+    short = dataclasses.replace(sc, duration_s=0.3)
+    monkeypatch.setattr(sim, "CONTACT_GATE_M", 0.0)
+    a, b = simulate(short), simulate(short, compiled=False)
+    assert np.array_equal(a.frame.to_numpy(), b.frame.to_numpy(), equal_nan=True)
+
+
+def test_disableflags_view_aliases_the_model_and_simulate_restores_it() -> None:
+    import mujoco
+
+    import roadtruth.harness.truth.simulate as sim
+
+    p = sim._prepare(load_scenario("step_steer"), None, 0.001)
+    flags = p.args[-1]
+    assert p.args[3][sim.I_GATE] == 1
+    flags[0] = 16
+    assert p.model.opt.disableflags == 16
+    p.model.opt.disableflags = 0
+    assert flags[0] == 0
+    m = mujoco.MjModel.from_xml_string('<mujoco><option><flag gravity="disable"/></option><worldbody/></mujoco>')
+    view = sim._disableflags_view(m)
+    assert view is not None and int(view[0]) == m.opt.disableflags != 0
