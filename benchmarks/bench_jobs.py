@@ -1,6 +1,8 @@
 """Two cores that count: ``roadtruth run --no-render`` with ``--jobs 2`` against ``--jobs 1``.
 
-Run: ``python benchmarks/bench_jobs.py [--repeats N] [--suite SUITE] [--root TREE] [--against OLD]``. Each measurement is the wall
+Run: ``python benchmarks/bench_jobs.py [--repeats N] [--suite SUITE | --scenarios all|S,S,...] [--root TREE]
+[--against OLD]``. ``--scenarios all`` runs every shipped scenario (``roadtruth scenarios``) as one
+run. Each measurement is the wall
 time of the whole command (``python -m roadtruth.harness.cli run ...`` in a fresh interpreter, imports and
 writing included: what a user waits for), with a warm design cache and warm numba caches (one
 unmeasured warm-up run first). The two job counts alternate, so a change of machine load hits both;
@@ -30,14 +32,14 @@ import bench_env
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run_once(jobs: int, suite: str, out: Path, tree: tuple[dict[str, str], Path]) -> tuple[float, dict[str, float]]:
+def run_once(jobs: int, selection: list[str], out: Path, tree: tuple[dict[str, str], Path]) -> tuple[float, dict[str, float]]:
     """Wall time [s] of one ``roadtruth run --no-render --jobs JOBS`` into a new folder under ``out``,
     with the code of ``tree`` (``bench_env.source_tree``: its environment and working folder), and
     the run's phases from its ``timings.json`` (empty for code that does not write them)."""
     tree_env, cwd = tree
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), **tree_env}
     folder = out / f"jobs{jobs}-{time.monotonic_ns()}"
-    cmd = [sys.executable, "-m", "roadtruth.harness.cli", "run", "--suite", suite, "--no-render", "--jobs", str(jobs),
+    cmd = [sys.executable, "-m", "roadtruth.harness.cli", "run", *selection, "--no-render", "--jobs", str(jobs),
            "--out", str(folder)]
     t = time.perf_counter()
     subprocess.run(cmd, cwd=cwd, env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -45,14 +47,26 @@ def run_once(jobs: int, suite: str, out: Path, tree: tuple[dict[str, str], Path]
     return wall, bench_env.phases_of(folder, wall)
 
 
+def shipped_scenarios() -> list[str]:
+    """Names of every scenario shipped with the package, in ``roadtruth scenarios`` order."""
+    from roadtruth.harness.truth.scenario_index import scenario_summaries
+
+    return [str(row["name"]) for row in scenario_summaries()]
+
+
 def main() -> None:
     bench_env.with_bytecode()
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--repeats", type=int, default=3, help="measured runs per job count (default 3)")
     p.add_argument("--suite", default="default", help="scenario suite (default: default)")
+    p.add_argument("--scenarios", help="these scenarios instead of a suite: 'all' (every shipped scenario) or S,S,...")
     p.add_argument("--root", type=Path, default=ROOT, help="source tree to run (default: this checkout)")
     p.add_argument("--against", type=Path, help="also run this source tree, interleaved (a before/after)")
     a = p.parse_args()
+    selection, what = ["--suite", a.suite], f"--suite {a.suite}"
+    if a.scenarios:
+        names = shipped_scenarios() if a.scenarios == "all" else a.scenarios.split(",")
+        selection, what = ["--scenario", ",".join(names)], f"{len(names)} scenarios ({a.scenarios})"
     trees = {a.root.resolve().name: bench_env.source_tree(a.root)}
     if a.against is not None:
         trees[f"{a.against.resolve().name} (against)"] = bench_env.source_tree(a.against)
@@ -62,11 +76,11 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="bench-jobs-") as tmp:
         out = Path(tmp)
         for tree in trees.values():
-            run_once(2, a.suite, out, tree)  # warm-up: designs, numba caches, file cache
+            run_once(2, selection, out, tree)  # warm-up: designs, numba caches, file cache
         for _ in range(a.repeats):
             for name, tree in trees.items():
                 for jobs in (1, 2):
-                    wall, parts = run_once(jobs, a.suite, out, tree)
+                    wall, parts = run_once(jobs, selection, out, tree)
                     times[(name, jobs)].append(wall)
                     if parts:
                         phases[(name, jobs)].append(parts)
@@ -74,7 +88,7 @@ def main() -> None:
         prefix = f"[{name}] " if len(trees) > 1 else ""
         for jobs in (1, 2):
             ts = times[(name, jobs)]
-            print(f"{prefix}run --suite {a.suite} --no-render --jobs {jobs}: best {min(ts):6.2f} s  "
+            print(f"{prefix}run {what} --no-render --jobs {jobs}: best {min(ts):6.2f} s  "
                   f"median {statistics.median(ts):6.2f} s  ({', '.join(f'{t:.2f}' for t in ts)})")
         one, two = times[(name, 1)], times[(name, 2)]
         print(f"{prefix}speed-up --jobs 2 / --jobs 1: best {min(one) / min(two):.2f}x  "

@@ -22,11 +22,14 @@ from typing import NoReturn
 
 from roadtruth.harness import __version__
 from roadtruth.harness.errors import CheckFailed, InputError
+from roadtruth.harness.jobs.warm_start import one_blas_thread
 
 EXIT_OK, EXIT_CHECK_FAILED, EXIT_BAD_INPUT = 0, 1, 2
 
 # Offscreen rendering must be chosen before anything imports mujoco; with no display, GLFW cannot work.
 os.environ.setdefault("MUJOCO_GL", "egl")
+# One BLAS thread per process (the run's parallelism is its processes), before anything imports NumPy.
+os.environ.update(one_blas_thread())
 
 
 class _Parser(argparse.ArgumentParser):

@@ -13,7 +13,9 @@ import sys
 import textwrap
 from pathlib import Path
 
-from roadtruth.harness.jobs.warm_start import collection_paused
+import pytest
+
+from roadtruth.harness.jobs.warm_start import collection_paused, one_blas_thread
 
 
 def _fresh(code: str) -> dict:
@@ -123,3 +125,42 @@ def test_a_workers_server_leaves_without_the_teardown_and_its_children_keep_thei
     assert res.returncode == 0, res.stderr
     assert res.stdout == "torn down in child\nunflushed line of the parent"
 
+
+
+BLAS_IN_WORKERS = """
+    import json, os, sys
+    sys.path.insert(0, {tests!r})
+    for name in ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS"):
+        os.environ.pop(name, None)
+    os.environ.update({user!r})
+    import worker_tasks
+    from roadtruth.harness.jobs.worker_pool import WorkerPool
+    with WorkerPool(worker_tasks.blas_environment, 1) as pool:
+        seen = pool.submit(0).result(timeout=300)
+    seen["caller"] = os.environ.get("OPENBLAS_NUM_THREADS")
+    print(json.dumps(seen))
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the forkserver and /proc are Linux's")
+def test_workers_load_blas_with_one_thread_and_the_caller_and_a_user_s_choice_are_left_alone() -> None:
+    tests = str(Path(__file__).resolve().parent)
+    seen = _fresh(BLAS_IN_WORKERS.format(tests=tests, user={}))
+    # The server loaded OpenBLAS under it, its workers inherit it; the caller's environment is untouched.
+    assert (seen["server"], seen["worker"], seen["caller"]) == ("1", "1", None)
+    chosen = _fresh(BLAS_IN_WORKERS.format(tests=tests, user={"OMP_NUM_THREADS": "2"}))
+    assert (chosen["server"], chosen["worker"], chosen["caller"]) == (None, None, None)
+    assert one_blas_thread({"OPENBLAS_NUM_THREADS": "4"}) == {"OPENBLAS_NUM_THREADS": "4"}
+    assert one_blas_thread({"OPENBLAS_NUM_THREADS": " ", "X": "y"}) == {"OPENBLAS_NUM_THREADS": "1", "X": "y"}
+
+
+def test_a_command_s_own_process_loads_blas_with_one_thread() -> None:
+    seen = _fresh("""
+        import json, os
+        for name in ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS"):
+            os.environ.pop(name, None)
+        from roadtruth.harness import cli
+        import numpy
+        print(json.dumps({"value": os.environ.get("OPENBLAS_NUM_THREADS")}))
+    """)
+    assert seen["value"] == "1"

@@ -32,3 +32,19 @@ def process_state(_: object) -> dict[str, object]:
         # numba's target context, set up by the first kernel call of a process (0.8-1.2 s)
         state["numba_registries"] = len(cpu_target.target_context._registries)
     return state
+
+
+def blas_environment(_: object) -> dict[str, object]:
+    """``OPENBLAS_NUM_THREADS`` as this worker and its parent (the pools' forkserver, which loaded
+    NumPy's and SciPy's OpenBLAS before forking it) started with; None where it is not set."""
+    def variable(environ: bytes) -> str | None:
+        for item in environ.split(b"\0"):
+            if item.startswith(b"OPENBLAS_NUM_THREADS="):
+                return item.split(b"=", 1)[1].decode()
+        return None
+
+    with open(f"/proc/{os.getppid()}/environ", "rb") as f:
+        server = variable(f.read())
+    with open("/proc/self/environ", "rb") as f:
+        worker = variable(f.read())
+    return {"worker": worker, "server": server, "server_pid": os.getppid()}

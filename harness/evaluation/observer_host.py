@@ -67,6 +67,7 @@ from typing import Any
 import numpy as np
 
 from roadtruth.harness.evaluation.host_fork import ForkedProcess, fork_child, fork_is_safe, name_process
+from roadtruth.harness.jobs.warm_start import one_blas_thread
 from roadtruth.harness.jobs.worker_pool import exit_reason
 
 #: How long a new host may take to import numpy, numba, cvxpy and the observers [s].
@@ -309,7 +310,7 @@ class ObserverHost:
                     lambda: serve(Connection(req_r, writable=False), Connection(rep_w, readable=False), parent,
                                   bool(death), forked=True), keep_fds=(req_r, rep_w))
             else:
-                env = {**os.environ, "PYTHONPATH": _child_pythonpath()}
+                env = {**one_blas_thread(), "PYTHONPATH": _child_pythonpath()}
                 self.process = subprocess.Popen(
                     [sys.executable, "-m", "roadtruth.harness.evaluation.observer_host", str(req_r), str(rep_w),
                      str(os.getpid()), str(death)],

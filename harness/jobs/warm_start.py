@@ -77,6 +77,27 @@ def leave_without_teardown() -> None:
     atexit.register(leave)
 
 
+#: The variables OpenBLAS (bundled with NumPy's and SciPy's wheels, one copy each) reads its thread
+#: count from when it loads, in the order it reads them.
+BLAS_THREAD_VARIABLES: tuple[str, ...] = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")
+
+
+def one_blas_thread(environ: dict[str, str] | None = None) -> dict[str, str]:
+    """``environ`` (default: a copy of ``os.environ``) with ``OPENBLAS_NUM_THREADS=1`` unless one of
+    :data:`BLAS_THREAD_VARIABLES` is set already (the user's choice is kept).
+
+    The processes of a run work in parallel already, one per core: a scenario or sweep worker and its
+    observer host each, and each loads two OpenBLAS copies (NumPy's and SciPy's, the one numba calls).
+    With their default, each copy keeps a thread per extra core that spins for a while after every
+    call, on the cores the other workers need; the matrices here are a few rows, far below the size
+    where a second BLAS thread pays. Read when OpenBLAS loads: set it before NumPy is imported.
+    """
+    env = dict(os.environ if environ is None else environ)
+    if not any(env.get(name, "").strip() for name in BLAS_THREAD_VARIABLES):
+        env[BLAS_THREAD_VARIABLES[0]] = "1"
+    return env
+
+
 #: The BLAS and LAPACK modules numba binds its linear algebra to (imported when numba starts).
 NUMBA_BLAS_MODULES: tuple[str, ...] = ("scipy.linalg.cython_blas", "scipy.linalg.cython_lapack")
 

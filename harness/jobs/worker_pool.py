@@ -45,11 +45,13 @@ import threading
 import time
 import traceback
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future
 from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from typing import Any, Generic, TypeVar
+
+from roadtruth.harness.jobs.warm_start import one_blas_thread
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -121,7 +123,22 @@ def worker_context(preload: tuple[str, ...] = FORKSERVER_PRELOAD) -> multiproces
         if not running:
             _forkserver_started_under, _forkserver_preload = now, preload
             ctx.set_forkserver_preload(list(preload))  # what the server about to start imports
+            with _environment(one_blas_thread()):  # the server's children inherit it; this process keeps its own
+                forkserver.ensure_running()
     return ctx
+
+
+@contextlib.contextmanager
+def _environment(env: dict[str, str]) -> Iterator[None]:
+    """``os.environ`` is ``env`` for the block (a process started in it inherits it), as before after."""
+    before = dict(os.environ)
+    os.environ.clear()
+    os.environ.update(env)
+    try:
+        yield
+    finally:
+        os.environ.clear()
+        os.environ.update(before)
 
 
 def start_forkserver(*, renders_only: bool = False, preload: tuple[str, ...] | None = None) -> None:
