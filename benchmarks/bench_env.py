@@ -79,3 +79,20 @@ def phases_of(folder: Path, wall_s: float) -> dict[str, float]:
     if phases:
         phases["imports and exit"] = wall_s - float(timings["wall_s"])
     return phases
+
+
+def busy_cpu_seconds() -> float:
+    """CPU seconds the machine has been busy since boot, on every core together (user, nice, system,
+    irq and softirq time of ``/proc/stat``); NaN where there is no ``/proc/stat``.
+
+    The difference over a command is the CPU every process of it used (the command, its workers'
+    server, workers and observer hosts, which a parent's ``getrusage`` misses when they are not its
+    own waited-for children), plus whatever else ran meanwhile: read it on an otherwise idle machine.
+    """
+    try:
+        with open("/proc/stat", encoding="ascii") as f:
+            fields = f.readline().split()
+    except OSError:
+        return float("nan")
+    user, nice, system, _idle, _iowait, irq, softirq = (int(v) for v in fields[1:8])
+    return (user + nice + system + irq + softirq) / os.sysconf("SC_CLK_TCK")

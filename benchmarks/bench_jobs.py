@@ -13,7 +13,9 @@ runs the source tree ``OLD`` (an older checkout) in the same rounds, interleaved
 before/after on a machine whose speed drifts within minutes. Each run's ``timings.json`` splits its
 time into start (checks, the workers' start-up), the scenarios, and finish (metrics, run.json, the
 page); with the command's imports and exit, medians of these are printed, and how much faster the
-scenarios alone ran on two workers.
+scenarios alone ran on two workers. Also printed: the median CPU seconds the whole machine spent
+during each command (``/proc/stat``: every process of the run, which a wall time on a machine whose
+speed drifts can hide; meaningful only with nothing else running).
 """
 
 from __future__ import annotations
@@ -32,19 +34,21 @@ import bench_env
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run_once(jobs: int, selection: list[str], out: Path, tree: tuple[dict[str, str], Path]) -> tuple[float, dict[str, float]]:
+def run_once(jobs: int, selection: list[str], out: Path,
+             tree: tuple[dict[str, str], Path]) -> tuple[float, dict[str, float], float]:
     """Wall time [s] of one ``roadtruth run --no-render --jobs JOBS`` into a new folder under ``out``,
-    with the code of ``tree`` (``bench_env.source_tree``: its environment and working folder), and
-    the run's phases from its ``timings.json`` (empty for code that does not write them)."""
+    with the code of ``tree`` (``bench_env.source_tree``: its environment and working folder), the
+    run's phases from its ``timings.json`` (empty for code that does not write them) and the CPU
+    seconds the machine spent meanwhile (``bench_env.busy_cpu_seconds``)."""
     tree_env, cwd = tree
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), **tree_env}
     folder = out / f"jobs{jobs}-{time.monotonic_ns()}"
     cmd = [sys.executable, "-m", "roadtruth.harness.cli", "run", *selection, "--no-render", "--jobs", str(jobs),
            "--out", str(folder)]
-    t = time.perf_counter()
+    cpu, t = bench_env.busy_cpu_seconds(), time.perf_counter()
     subprocess.run(cmd, cwd=cwd, env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    wall = time.perf_counter() - t
-    return wall, bench_env.phases_of(folder, wall)
+    wall, cpu = time.perf_counter() - t, bench_env.busy_cpu_seconds() - cpu
+    return wall, bench_env.phases_of(folder, wall), cpu
 
 
 def shipped_scenarios() -> list[str]:
@@ -73,6 +77,7 @@ def main() -> None:
     print(f"cores: {os.cpu_count()}, load average before: {os.getloadavg()[0]:.2f}")
     times: dict[tuple[str, int], list[float]] = {(name, jobs): [] for name in trees for jobs in (1, 2)}
     phases: dict[tuple[str, int], list[dict[str, float]]] = {key: [] for key in times}
+    cpus: dict[tuple[str, int], list[float]] = {key: [] for key in times}
     with tempfile.TemporaryDirectory(prefix="bench-jobs-") as tmp:
         out = Path(tmp)
         for tree in trees.values():
@@ -80,8 +85,9 @@ def main() -> None:
         for _ in range(a.repeats):
             for name, tree in trees.items():
                 for jobs in (1, 2):
-                    wall, parts = run_once(jobs, selection, out, tree)
+                    wall, parts, cpu = run_once(jobs, selection, out, tree)
                     times[(name, jobs)].append(wall)
+                    cpus[(name, jobs)].append(cpu)
                     if parts:
                         phases[(name, jobs)].append(parts)
     for name in trees:
@@ -93,6 +99,9 @@ def main() -> None:
         one, two = times[(name, 1)], times[(name, 2)]
         print(f"{prefix}speed-up --jobs 2 / --jobs 1: best {min(one) / min(two):.2f}x  "
               f"median {statistics.median(one) / statistics.median(two):.2f}x")
+        print(f"{prefix}  CPU of the whole machine during the command, median: "
+              f"{statistics.median(cpus[(name, 1)]):.2f} s with --jobs 1, {statistics.median(cpus[(name, 2)]):.2f} s "
+              "with --jobs 2 (every process of the run; on an idle machine)")
         medians = {}
         for jobs in (1, 2):
             runs = phases[(name, jobs)]
