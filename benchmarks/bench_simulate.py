@@ -11,6 +11,9 @@ Rows:
 - ``simulate() end to end``: model build, set-up, the compiled loop (tires, driver, road projection,
   friction map, logging of every signal), the DataFrame and the truth events.
 - ``simulate() compiled loop only``: the ``_run`` call of the same runs.
+- ``same, collision check on every step``: the loop with the floor gate off (``CONTACT_GATE_M``
+  infinite), so MuJoCo's collision pass runs every step as it did before the gate; interleaved with
+  the gated runs, the A/B of the gate.
 - The baseline, ``bare mj_step1+2, wheel loads held, contacts off``: the physics model exactly as
   ``simulate()`` builds it, started from the same initial state (pose, speed, spinning wheels), with
   each wheel's static tire load applied through ``xfrc_applied`` as the tire code applies it (at the
@@ -30,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import os
 import statistics
 import time
@@ -174,17 +178,21 @@ def main() -> None:
     sim.simulate(dataclasses.replace(sc, duration_s=0.05))  # compile / load the numba cache
     rec = _record(sc, n)
 
-    timed = _TimedRun(sim._run)
+    timed, checked = _TimedRun(sim._run), _TimedRun(sim._run)
     end_to_end: list[float] = []
+    gate = sim.CONTACT_GATE_M
 
-    def run_simulate() -> None:
-        sim._run = timed  # type: ignore[assignment]
+    def run_simulate(every_step: bool = False) -> None:
+        """One simulate(); ``every_step``: with MuJoCo's collision check on every step (no floor gate)."""
+        sim._run = checked if every_step else timed  # type: ignore[assignment]
+        sim.CONTACT_GATE_M = math.inf if every_step else gate
         try:
             t0 = time.perf_counter()
             sim.simulate(sc)
-            end_to_end.append(time.perf_counter() - t0)
+            if not every_step:
+                end_to_end.append(time.perf_counter() - t0)
         finally:
-            sim._run = timed.original
+            sim._run, sim.CONTACT_GATE_M = timed.original, gate
 
     bare_rows = {
         "baseline: bare mj_step1+2, replayed inputs, contacts off": _replay_model(sc, rec, contacts=False,
@@ -197,6 +205,7 @@ def main() -> None:
     py_times: list[float] = []
     for _ in range(args.repeats):
         run_simulate()
+        run_simulate(every_step=True)
         for label, run in bare_rows.items():
             bare_times[label].append(run())
         py_times.append(_python_replay(sc, rec, n_py) * n / n_py)
@@ -209,6 +218,7 @@ def main() -> None:
     print(f"physics model {geoms[False]} geoms; with the scenario's visuals {geoms[True]} geoms. The replays "
           "apply simulate()'s recorded forces, controls and brakes and end bit-equal to its state.")
     table = [("simulate() end to end", end_to_end), ("simulate() compiled loop only", timed.times),
+             ("same, collision check on every step (no floor gate)", checked.times),
              *bare_times.items(), ("bare Python loop of mj_step1/mj_step2, replayed", py_times)]
     print(f"{'configuration':58s} {'best [s]':>9s} {'median [s]':>10s} {'us/step':>8s} {'RTF':>7s}")
     for label, times in table:
@@ -218,6 +228,10 @@ def main() -> None:
     for label, times in (("end to end", end_to_end), ("loop only", timed.times)):
         print(f"simulate() {label}: {statistics.median(base) / statistics.median(times):.2f}x the baseline's speed "
               f"(median), {min(base) / min(times):.2f}x (best)")
+    gain_med = statistics.median(checked.times) / statistics.median(timed.times)
+    gain_best = min(checked.times) / min(timed.times)
+    print(f"the floor gate (collision check only near the floor): loop {gain_med:.3f}x faster than checking "
+          f"every step (median; {gain_best:.3f}x best)")
     on, vis = bare_times["bare mj_step1+2, replayed inputs, contacts on"], bare_times[
         "same, old physics model with scenario visuals"]
     print(f"stepping the old physics model (with visuals) takes {statistics.median(vis) / statistics.median(on):.2f}x "

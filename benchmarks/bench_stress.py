@@ -11,7 +11,8 @@ printed: best-of-N and median per executor, the speed-up of ``--jobs 2`` over ``
 ratio of ``--dask local --jobs 2`` (a real LocalCluster on loopback) to ``--jobs 2``, with the load
 average before and after, then the medians of each sweep's phases from its ``timings.json``
 (start: checks and the workers' start-up; work: the cases; finish: tables and page; and the
-command's imports and exit) and how much faster the cases alone ran on two workers. Ratios of two
+command's imports and exit), how much faster the cases alone ran on two workers, and the median CPU
+seconds the whole machine spent during each sweep (``/proc/stat``: every process of it). Ratios of two
 workers can only be judged with both cores free.
 """
 
@@ -39,6 +40,8 @@ SWEEP = ["--scenario", "step_steer", "--observer", "kf_bicycle,lpv_wang", "--fri
 
 #: label -> each measured sweep's phases from its timings.json (code that writes them), in seconds.
 PHASES: dict[str, list[dict[str, float]]] = {}
+#: label -> the CPU seconds the machine spent during each measured sweep (``bench_env.busy_cpu_seconds``).
+CPUS: dict[str, list[float]] = {}
 
 
 def sweep_once(label: str, extra: list[str], seeds: int, out: Path) -> float:
@@ -46,9 +49,10 @@ def sweep_once(label: str, extra: list[str], seeds: int, out: Path) -> float:
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), **TREE_ENV}
     cmd = [sys.executable, "-m", "roadtruth.harness.cli", "stress", *SWEEP, "--seeds", str(seeds), *extra,
            "--out", str(out / f"{label}-{(stamp := time.monotonic_ns())}")]
-    t = time.perf_counter()
+    cpu, t = bench_env.busy_cpu_seconds(), time.perf_counter()
     subprocess.run(cmd, cwd=ROOT_DIR[0], env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     wall = time.perf_counter() - t
+    CPUS.setdefault(label, []).append(bench_env.busy_cpu_seconds() - cpu)
     parts = bench_env.phases_of(out / f"{label}-{stamp}", wall)
     if parts:
         PHASES.setdefault(label, []).append(parts)
@@ -85,6 +89,8 @@ def main() -> None:
                 f"median {statistics.median(times[num]) / statistics.median(times[den]):.2f}x")
 
     print(f"speed-up --jobs 2 over --jobs 1 (time 1 / time 2): {ratio('--jobs 1', '--jobs 2')}")
+    print("  CPU of the whole machine during the sweep, median (every process; on an idle machine): "
+          + ", ".join(f"{label} {statistics.median(CPUS[label.replace(' ', '')]):.2f} s" for label in times))
     medians: dict[str, dict[str, float]] = {}
     for label in times:
         runs = PHASES.get(label.replace(" ", ""), [])
